@@ -1,0 +1,332 @@
+"""The locomotion base environment: a Brax ``PipelineEnv`` on the MJX backend.
+
+What every legged robot here shares:
+- PD joint control at the physics rate. The policy's action a sets a joint target
+  ``q* = q_default + action_scale * clip(a)``; each physics substep applies
+  ``tau = clip(Kp (q* - q), -tau_max, tau_max)`` through torque motors, and the ``-Kd qdot``
+  half of the PD law is the model's joint damping, which MuJoCo's Euler integrator treats
+  implicitly. That keeps high-Kd, light joints (humanoid ankles) stable at a 5 ms step; the
+  price is that the damping torque is not clipped with the stiffness torque.
+- Velocity commands (vx, vy, yaw rate) sampled per episode and every ``resample_time_s``.
+- Episode bookkeeping and a cheap auto-reset inside ``step``: truncation (time-out) is recorded
+  apart from termination (fall or non-finite physics), and the observation reached *before* the
+  reset is kept in ``info["final_obs"]`` so the trainer can bootstrap time-outs correctly.
+  Resetting only rewrites qpos/qvel (no ``mjx.forward``): the next ``mjx.step`` recomputes
+  everything else, so a reset costs almost nothing.
+- Rewards are a dict of named terms; the reward is ``dt * sum_i w_i term_i`` (the legged_gym
+  convention), optionally clipped at zero, and every weighted term is logged in ``metrics``.
+
+Families (quadruped, biped) subclass this and supply observations and reward terms.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from brax import math
+from brax.envs.base import PipelineEnv, State
+from brax.io import mjcf
+
+ASSETS_DIR = Path(__file__).resolve().parents[1] / "assets"
+
+
+@dataclass(frozen=True)
+class CommandConfig:
+    """Ranges of the sampled velocity commands (uniform)."""
+
+    lin_vel_x: tuple[float, float] = (-1.0, 1.0)
+    """Forward velocity command range, m/s (base frame)."""
+    lin_vel_y: tuple[float, float] = (-1.0, 1.0)
+    """Lateral velocity command range, m/s."""
+    yaw_rate: tuple[float, float] = (-1.0, 1.0)
+    """Yaw-rate command range, rad/s."""
+    resample_time_s: float = 10.0
+    """Commands are resampled this often within an episode (and at every reset)."""
+    zero_below: float = 0.2
+    """Planar commands with norm below this become exactly zero (legged_gym), so the
+    policy also learns to stand still."""
+
+    def __post_init__(self):
+        for name in ("lin_vel_x", "lin_vel_y", "yaw_rate"):
+            lo, hi = getattr(self, name)
+            if lo > hi:
+                raise ValueError(f"commands.{name}: low {lo} > high {hi}")
+        if self.resample_time_s <= 0:
+            raise ValueError(f"commands.resample_time_s must be > 0, got {self.resample_time_s}")
+
+
+@dataclass(frozen=True)
+class LocomotionConfig:
+    """Settings shared by every legged robot. Families extend it with their reward weights."""
+
+    asset: str = ""
+    """MJCF file name in ``assets/``."""
+    sim_dt: float = 0.005
+    """Physics time step, s."""
+    decimation: int = 4
+    """Physics steps per policy step; policy rate = 1 / (sim_dt * decimation)."""
+    episode_length_s: float = 20.0
+    """Episodes are truncated (time-out, bootstrapped) after this long."""
+    kp: tuple[float, ...] = (40.0,)
+    """Proportional PD gain per joint, N m / rad (one value broadcasts to all joints)."""
+    kd: tuple[float, ...] = (0.5,)
+    """Derivative PD gain per joint, N m s / rad (written into the model's joint damping)."""
+    action_scale: float = 0.25
+    """Joint target = default pose + action_scale * action, rad."""
+    clip_actions: float = 100.0
+    """Raw actions are clipped to +-this before scaling (legged_gym's clip_actions)."""
+    solver_iterations: int = 1
+    """MJX constraint solver iterations (cost grows with them)."""
+    ls_iterations: int = 4
+    """MJX line-search iterations."""
+    implicit_damping: bool = True
+    """Integrate joint damping (the PD law's Kd) implicitly (MuJoCo's Euler 'eulerdamp').
+    Needed for high-Kd light joints at a 5 ms step; explicit is cheaper where it is stable."""
+    termination_height: float = 0.15
+    """The episode ends (no bootstrap) when the base origin drops below this height, m."""
+    max_tilt_rad: float = 1.0
+    """... or when the base tilts further than this from upright, rad."""
+    init_joint_noise: float = 0.1
+    """Initial joint angles: default pose + U(-x, x), rad."""
+    init_base_vel_noise: float = 0.2
+    """Initial base linear and angular velocity: U(-x, x) per axis."""
+    only_positive_rewards: bool = True
+    """Clip the total reward at zero (legged_gym, humanoid-gym): avoids learning to fall early."""
+    commands: CommandConfig = field(default_factory=CommandConfig)
+    """Velocity command sampling."""
+
+    def __post_init__(self):
+        if self.sim_dt <= 0 or self.decimation < 1:
+            raise ValueError(f"sim_dt must be > 0 and decimation >= 1, got {self.sim_dt}, {self.decimation}")
+        if self.episode_length_s < self.sim_dt * self.decimation:
+            raise ValueError(f"episode_length_s={self.episode_length_s} is shorter than one policy step")
+        if self.solver_iterations < 1 or self.ls_iterations < 1:
+            raise ValueError("solver_iterations and ls_iterations must be >= 1")
+        if any(k < 0 for k in self.kp) or any(k < 0 for k in self.kd):
+            raise ValueError("PD gains kp and kd must be >= 0")
+
+    @property
+    def ctrl_dt(self) -> float:
+        return self.sim_dt * self.decimation
+
+    @property
+    def episode_steps(self) -> int:
+        return int(round(self.episode_length_s / self.ctrl_dt))
+
+
+def load_mj_model(cfg: LocomotionConfig) -> mujoco.MjModel:
+    """Load the asset and apply the config's physics settings to it."""
+    path = ASSETS_DIR / cfg.asset
+    if not path.is_file():
+        raise FileNotFoundError(f"robot asset {path} not found (config asset={cfg.asset!r})")
+    model = mujoco.MjModel.from_xml_path(str(path))
+    model.opt.timestep = cfg.sim_dt
+    model.opt.iterations = cfg.solver_iterations
+    model.opt.ls_iterations = cfg.ls_iterations
+    eulerdamp = int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    if cfg.implicit_damping:
+        model.opt.disableflags &= ~eulerdamp
+    else:
+        model.opt.disableflags |= eulerdamp
+    nu = model.nu
+    model.dof_damping[6:] = _per_joint(cfg.kd, nu, "kd")
+    return model
+
+
+def _per_joint(values: tuple[float, ...], n: int, name: str) -> np.ndarray:
+    v = np.asarray(values, np.float32)
+    if v.size == 1:
+        return np.full(n, float(v[0]), np.float32)
+    if v.size != n:
+        raise ValueError(f"{name} has {v.size} values; the robot has {n} joints (give 1 or {n})")
+    return v
+
+
+class LeggedEnv(PipelineEnv):
+    """Base class: PD control, commands, termination, auto-reset and reward bookkeeping."""
+
+    def __init__(self, config: LocomotionConfig, **kwargs):
+        self.config = config
+        mj_model = load_mj_model(config)
+        self.mj_model = mj_model
+        sys = mjcf.load_model(mj_model)
+        super().__init__(sys, backend="mjx", n_frames=config.decimation, **kwargs)
+
+        self.num_joints = mj_model.nu
+        key = mj_model.key("home")
+        self._default_qpos = jnp.asarray(key.qpos, jnp.float32)
+        self._default_joints = self._default_qpos[7:]
+        self._kp = jnp.asarray(_per_joint(config.kp, self.num_joints, "kp"))
+        self._kd = jnp.asarray(_per_joint(config.kd, self.num_joints, "kd"))
+        self._torque_limit = jnp.asarray(mj_model.actuator_ctrlrange[:, 1], jnp.float32)
+        lo, hi = mj_model.jnt_range[1:, 0], mj_model.jnt_range[1:, 1]
+        self._joint_lower = jnp.asarray(lo, jnp.float32)
+        self._joint_upper = jnp.asarray(hi, jnp.float32)
+        self._reward_weights: Mapping[str, float] = dataclasses.asdict(config.rewards)  # type: ignore[attr-defined]
+
+    # ----- to be provided by a family -------------------------------------------------------
+    def _init_family_info(self, data: Any, rng: jax.Array) -> dict:
+        return {}
+
+    def _observe(self, data: Any, info: dict) -> tuple[dict[str, jax.Array], dict]:
+        """Return ({"state", "privileged_state"}, updated info) for the current data."""
+        raise NotImplementedError
+
+    def _reward_terms(self, data: Any, action: jax.Array, info: dict) -> dict[str, jax.Array]:
+        raise NotImplementedError
+
+    def _after_step_info(self, data: Any, info: dict) -> dict:
+        """Family bookkeeping after rewards (e.g. feet air time)."""
+        return info
+
+    # ----- shared kinematics ------------------------------------------------------------------
+    @staticmethod
+    def base_quat(data) -> jax.Array:
+        return data.qpos[3:7]
+
+    def projected_gravity(self, data) -> jax.Array:
+        return math.inv_rotate(jnp.array([0.0, 0.0, -1.0]), self.base_quat(data))
+
+    def base_lin_vel(self, data) -> jax.Array:
+        """Base linear velocity in the base frame (free-joint qvel[0:3] is in the world frame)."""
+        return math.inv_rotate(data.qvel[0:3], self.base_quat(data))
+
+    @staticmethod
+    def base_ang_vel(data) -> jax.Array:
+        """Base angular velocity in the base frame (MuJoCo's free-joint qvel[3:6] already is)."""
+        return data.qvel[3:6]
+
+    @staticmethod
+    def joint_pos(data) -> jax.Array:
+        return data.qpos[7:]
+
+    @staticmethod
+    def joint_vel(data) -> jax.Array:
+        return data.qvel[6:]
+
+    # ----- commands ---------------------------------------------------------------------------
+    def sample_command(self, rng: jax.Array) -> jax.Array:
+        c = self.config.commands
+        lo = jnp.array([c.lin_vel_x[0], c.lin_vel_y[0], c.yaw_rate[0]])
+        hi = jnp.array([c.lin_vel_x[1], c.lin_vel_y[1], c.yaw_rate[1]])
+        cmd = jax.random.uniform(rng, (3,), minval=lo, maxval=hi)
+        planar = jnp.linalg.norm(cmd[:2]) >= c.zero_below
+        return cmd.at[:2].multiply(planar)
+
+    # ----- reset --------------------------------------------------------------------------------
+    def _initial_qpos_qvel(self, rng: jax.Array) -> tuple[jax.Array, jax.Array]:
+        k_q, k_v = jax.random.split(rng)
+        cfg = self.config
+        joint_noise = jax.random.uniform(k_q, (self.num_joints,), minval=-1.0, maxval=1.0)
+        qpos = self._default_qpos.at[7:].add(cfg.init_joint_noise * joint_noise)
+        qpos = qpos.at[7:].set(jnp.clip(qpos[7:], self._joint_lower, self._joint_upper))
+        base_vel = jax.random.uniform(k_v, (6,), minval=-1.0, maxval=1.0) * cfg.init_base_vel_noise
+        qvel = jnp.zeros(self.sys.nv).at[:6].set(base_vel)
+        return qpos, qvel
+
+    def _fresh_info(self, data, rng: jax.Array) -> dict:
+        rng, k_cmd, k_family = jax.random.split(rng, 3)
+        info = {
+            "rng": rng,
+            "command": self.sample_command(k_cmd),
+            "last_action": jnp.zeros(self.num_joints),
+            "last_joint_vel": self.joint_vel(data),
+            "step": jnp.zeros((), jnp.int32),
+            "truncation": jnp.zeros(()),
+            "termination": jnp.zeros(()),
+            "nonfinite": jnp.zeros(()),
+        }
+        info.update(self._init_family_info(data, k_family))
+        return info
+
+    def reset(self, rng: jax.Array) -> State:
+        rng, k_init = jax.random.split(rng)
+        qpos, qvel = self._initial_qpos_qvel(k_init)
+        data = self.pipeline_init(qpos, qvel)
+        info = self._fresh_info(data, rng)
+        obs, info = self._observe(data, info)
+        info["final_obs"] = obs
+        zero = jnp.zeros(())
+        metrics = {f"reward/{k}": zero for k in self._reward_weights}
+        return State(data, obs, zero, zero, metrics, info)
+
+    # ----- step ---------------------------------------------------------------------------------
+    def joint_targets(self, action: jax.Array) -> jax.Array:
+        a = jnp.clip(action, -self.config.clip_actions, self.config.clip_actions)
+        return self._default_joints + self.config.action_scale * a
+
+    def pd_torque(self, data, target: jax.Array) -> jax.Array:
+        """Stiffness half of the PD law; the damping half is implicit joint damping."""
+        tau = self._kp * (target - self.joint_pos(data))
+        return jnp.clip(tau, -self._torque_limit, self._torque_limit)
+
+    def physics_step(self, data, action: jax.Array):
+        target = self.joint_targets(action)
+
+        def substep(d, _):
+            return self._pipeline.step(self.sys, d, self.pd_torque(d, target), self._debug), None
+
+        data, _ = jax.lax.scan(substep, data, None, length=self.config.decimation)
+        return data
+
+    def fell(self, data) -> jax.Array:
+        too_low = data.qpos[2] < self.config.termination_height
+        tilted = self.projected_gravity(data)[2] > -jnp.cos(self.config.max_tilt_rad)
+        return too_low | tilted
+
+    def step(self, state: State, action: jax.Array) -> State:
+        cfg = self.config
+        data = self.physics_step(state.pipeline_state, action)
+        info = dict(state.info)
+        info.pop("final_obs")
+        info["step"] = info["step"] + 1
+
+        nonfinite = ~(jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel)))
+        terms = self._reward_terms(data, action, info)
+        weighted = {k: self._reward_weights[k] * v * cfg.ctrl_dt for k, v in terms.items()}
+        reward = sum(weighted.values())
+        if cfg.only_positive_rewards:
+            reward = jnp.maximum(reward, 0.0)
+        reward = jnp.where(nonfinite, 0.0, reward)
+        metrics = {f"reward/{k}": jnp.where(nonfinite, 0.0, v) for k, v in weighted.items()}
+
+        info = self._after_step_info(data, info)
+        info["last_action"] = action
+        info["last_joint_vel"] = self.joint_vel(data)
+        obs, info = self._observe(data, info)
+        obs = jax.tree.map(lambda x: jnp.where(jnp.isfinite(x), x, 0.0), obs)
+
+        termination = self.fell(data) | nonfinite
+        truncation = (info["step"] >= cfg.episode_steps) & ~termination
+        done = termination | truncation
+
+        # Commands are resampled on a fixed period within an episode.
+        rng, k_cmd, k_reset = jax.random.split(info["rng"], 3)
+        info["rng"] = rng
+        resample = (info["step"] % int(round(cfg.commands.resample_time_s / cfg.ctrl_dt))) == 0
+        info["command"] = jnp.where(resample, self.sample_command(k_cmd), info["command"])
+
+        # Auto-reset: rewrite the state where the episode ended.
+        qpos0, qvel0 = self._initial_qpos_qvel(k_reset)
+        reset_data = data.replace(
+            qpos=jnp.where(done, qpos0, data.qpos),
+            qvel=jnp.where(done, qvel0, data.qvel),
+            qacc_warmstart=jnp.where(done, 0.0, data.qacc_warmstart),
+        )
+        reset_info = self._fresh_info(reset_data, k_reset)
+        reset_obs, reset_info = self._observe(reset_data, reset_info)
+        info = jax.tree.map(lambda r, c: jnp.where(done, r, c), reset_info, info)
+        next_obs = jax.tree.map(lambda r, c: jnp.where(done, r, c), reset_obs, obs)
+
+        info["final_obs"] = obs
+        info["truncation"] = truncation.astype(jnp.float32)
+        info["termination"] = termination.astype(jnp.float32)
+        info["nonfinite"] = nonfinite.astype(jnp.float32)
+        return State(reset_data, next_obs, reward, done.astype(jnp.float32), metrics, info)

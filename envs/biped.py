@@ -1,0 +1,298 @@
+"""The biped family, after humanoid-gym's XBot-L setup: XBot-L today; MIT Humanoid, Cassie and
+TRON1 plug in with a config each.
+
+Observation frame (47 for 12 joints), humanoid-gym's order and scales:
+    sin and cos of the gait phase (2), command * (2, 2, 1) (3), joint positions relative to the
+    default pose (n), joint velocities * 0.05 (n), last action (n), base angular velocity (3),
+    base roll-pitch-yaw (3).
+The actor sees the last ``frame_stack`` frames (15 in humanoid-gym: 705 dims). The critic sees
+the current frame plus privileged state: base linear velocity * 2, base height, the reference
+stance mask, foot contacts and the joint error to the reference gait.
+
+Reference gait (humanoid-gym ``compute_ref_state``): with phase p = t / cycle_time and
+s = sin(2 pi p), the left leg swings while s < 0 and the right while s > 0; in swing the hip
+pitch, knee and ankle pitch targets are (s, 2s, s) * target_joint_pos_scale on the signed axes,
+and both legs stand while |s| < 0.1 (double support).
+
+Rewards: humanoid-gym's XBot-L terms (see ``BipedRewards``), except ``feet_contact_forces``
+and ``collision``, which need contact forces / collision geometry we leave out for MJX speed
+(documented in the README). Foot contact is geometric: sole height below ``contact_height``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+from brax import math
+
+from envs.base import CommandConfig, LeggedEnv, LocomotionConfig
+
+
+@dataclass(frozen=True)
+class BipedRewards:
+    """Reward weights (times the policy dt). humanoid-gym XBotLCfg values; 0 disables a term."""
+
+    joint_pos: float = 1.6
+    """exp(-2 |q - q_ref|) - 0.2 clip(|q - q_ref|, 0, 0.5): follow the reference gait."""
+    feet_clearance: float = 1.0
+    """Swing feet within 1 cm of target_feet_height."""
+    feet_contact_number: float = 1.2
+    """mean over feet of (1 if contact matches the reference stance else -0.3)."""
+    feet_air_time: float = 1.0
+    """sum_feet clip(t_air, 0, 0.5) at touchdown."""
+    foot_slip: float = -0.05
+    """sum_feet sqrt(|v_foot,xy|) while in contact."""
+    feet_distance: float = 0.2
+    """Keep the feet between min_feet_distance and max_feet_distance apart."""
+    knee_distance: float = 0.2
+    """Keep the knees between min_feet_distance and max_feet_distance / 2 apart."""
+    tracking_lin_vel: float = 1.2
+    """exp(-sigma |v_xy^cmd - v_xy|^2)."""
+    tracking_ang_vel: float = 1.1
+    """exp(-sigma (w_z^cmd - w_z)^2)."""
+    vel_mismatch_exp: float = 0.5
+    """(exp(-10 v_z^2) + exp(-5 |w_xy|)) / 2."""
+    low_speed: float = 0.2
+    """+1.2 within [0.5, 1.2] x the commanded vx, -1 too slow, -2 wrong sign."""
+    track_vel_hard: float = 0.5
+    """(exp(-10 |e_v|) + exp(-10 |e_w|)) / 2 - 0.2 (|e_v| + |e_w|)."""
+    default_joint_pos: float = 0.5
+    """exp(-100 clip(|hip yaw,roll error| - 0.1, 0)) - 0.01 |q - q_default|."""
+    orientation: float = 1.0
+    """(exp(-10 |roll, pitch|) + exp(-20 |g_xy|)) / 2."""
+    base_height: float = 0.2
+    """exp(-100 |h - base_height_target|), h measured from the stance feet."""
+    base_acc: float = 0.2
+    """exp(-3 |a_base|) with a_base the per-step change of base velocity."""
+    action_smoothness: float = -0.002
+    """First and second differences of actions, plus 0.05 |a|."""
+    torques: float = -1e-5
+    """|tau|^2."""
+    dof_vel: float = -5e-4
+    """|qdot|^2."""
+    dof_acc: float = -1e-7
+    """|qddot|^2."""
+
+
+@dataclass(frozen=True)
+class BipedConfig(LocomotionConfig):
+    """A biped: ``LocomotionConfig`` plus gait and foot settings."""
+
+    frame_stack: int = 15
+    """Observation frames stacked for the actor (humanoid-gym: 15)."""
+    cycle_time: float = 0.64
+    """Gait period, s."""
+    target_joint_pos_scale: float = 0.17
+    """Amplitude of the reference gait, rad."""
+    target_feet_height: float = 0.06
+    """Swing-foot clearance target, m."""
+    contact_height: float = 0.02
+    """A foot is in contact when its sole is below this height, m."""
+    tracking_sigma: float = 5.0
+    """Sharpness of the exponential tracking rewards."""
+    base_height_target: float = 0.89
+    """Target base height above the stance feet, m."""
+    min_feet_distance: float = 0.2
+    """Lower bound of the feet_distance reward band, m."""
+    max_feet_distance: float = 0.5
+    """Upper bound of the feet_distance reward band, m."""
+    swing_joints: tuple[int, int, int, int, int, int] = (2, 3, 4, 8, 9, 10)
+    """Indices of left hip pitch, knee, ankle pitch, then right: the reference gait's joints."""
+    swing_signs: tuple[float, float, float, float, float, float] = (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0)
+    """Sign of flexion on each swing joint (mirrored axes: left flexes negative)."""
+    hip_yaw_roll_joints: tuple[int, ...] = (0, 1, 6, 7)
+    """Hip roll and yaw joints, held near default by default_joint_pos."""
+    foot_sites: tuple[str, str] = ("left_foot_site", "right_foot_site")
+    """Sites at the sole centres."""
+    knee_bodies: tuple[str, str] = ("left_knee_link", "right_knee_link")
+    """Bodies whose origins are the knees (for knee_distance)."""
+    rewards: BipedRewards = field(default_factory=BipedRewards)
+    """Reward weights."""
+
+
+XBOT_L_CONFIG = BipedConfig(
+    asset="xbot_l.xml",
+    sim_dt=0.005,
+    decimation=2,  # 100 Hz policy, as humanoid-gym
+    episode_length_s=24.0,
+    kp=(200.0, 200.0, 350.0, 350.0, 15.0, 15.0) * 2,
+    kd=(10.0,),
+    action_scale=0.25,
+    termination_height=0.55,
+    max_tilt_rad=0.8,
+    init_joint_noise=0.05,
+    init_base_vel_noise=0.1,
+    commands=CommandConfig(
+        lin_vel_x=(-0.3, 0.6), lin_vel_y=(-0.3, 0.3), yaw_rate=(-0.3, 0.3), resample_time_s=8.0
+    ),
+)
+
+
+class BipedEnv(LeggedEnv):
+    config: BipedConfig
+
+    def __init__(self, config: BipedConfig, **kwargs):
+        super().__init__(config, **kwargs)
+        m = self.mj_model
+        if self.num_joints != 12 and config.swing_joints == BipedConfig.swing_joints:
+            raise ValueError(f"{config.asset}: {self.num_joints} joints; set swing_joints for this robot")
+        self._foot_sites = jnp.array([m.site(n).id for n in config.foot_sites])
+        self._knee_bodies = jnp.array([m.body(n).id for n in config.knee_bodies])
+        self._swing_idx = jnp.array(config.swing_joints)
+        self._swing_sign = jnp.array(config.swing_signs)
+        self._swing_gain = jnp.array([1.0, 2.0, 1.0, 1.0, 2.0, 1.0])
+
+    # ----- gait -----------------------------------------------------------------------------------
+    def phase(self, info) -> jax.Array:
+        return info["step"] * self.config.ctrl_dt / self.config.cycle_time
+
+    def reference(self, info) -> tuple[jax.Array, jax.Array]:
+        """(reference joint positions, stance mask [left, right])."""
+        s = jnp.sin(2.0 * jnp.pi * self.phase(info))
+        left_swing, right_swing = jnp.maximum(-s, 0.0), jnp.maximum(s, 0.0)
+        swing = jnp.array([left_swing] * 3 + [right_swing] * 3)
+        amplitude = self.config.target_joint_pos_scale * self._swing_gain * self._swing_sign * swing
+        amplitude = jnp.where(jnp.abs(s) < 0.1, 0.0, amplitude)
+        ref = self._default_joints.at[self._swing_idx].add(amplitude)
+        stance = jnp.array([s >= 0.0, s < 0.0]) | (jnp.abs(s) < 0.1)
+        return ref, stance
+
+    def foot_contact(self, data) -> jax.Array:
+        return data.site_xpos[self._foot_sites, 2] < self.config.contact_height
+
+    # ----- observations ---------------------------------------------------------------------------
+    def _init_family_info(self, data, rng):
+        return {
+            "obs_history": jnp.zeros((self.config.frame_stack, self.frame_size)),
+            "feet_air_time": jnp.zeros(2),
+            "last_contact": jnp.zeros(2, bool),
+            "last_foot_pos": data.site_xpos[self._foot_sites],
+            "last_last_action": jnp.zeros(self.num_joints),
+            "last_base_vel": data.qvel[:6],
+        }
+
+    @property
+    def frame_size(self) -> int:
+        return 2 + 3 + 3 * self.num_joints + 3 + 3
+
+    def _frame(self, data, info) -> jax.Array:
+        p = 2.0 * jnp.pi * self.phase(info)
+        return jnp.concatenate(
+            [
+                jnp.array([jnp.sin(p), jnp.cos(p)]),
+                info["command"] * jnp.array([2.0, 2.0, 1.0]),
+                self.joint_pos(data) - self._default_joints,
+                self.joint_vel(data) * 0.05,
+                info["last_action"],
+                self.base_ang_vel(data),
+                math.quat_to_euler(self.base_quat(data)),
+            ]
+        )
+
+    def _observe(self, data, info):
+        frame = self._frame(data, info)
+        shifted = jnp.concatenate([info["obs_history"][1:], frame[None]], axis=0)
+        filled = jnp.broadcast_to(frame, info["obs_history"].shape)
+        history = jnp.where(info["step"] == 0, filled, shifted)
+        info = {**info, "obs_history": history}
+        ref, stance = self.reference(info)
+        privileged = jnp.concatenate(
+            [
+                frame,
+                self.base_lin_vel(data) * 2.0,
+                data.qpos[2:3],
+                stance.astype(jnp.float32),
+                self.foot_contact(data).astype(jnp.float32),
+                self.joint_pos(data) - ref,
+            ]
+        )
+        return {"state": history.reshape(-1), "privileged_state": privileged}, info
+
+    # ----- rewards --------------------------------------------------------------------------------
+    def _reward_terms(self, data, action, info):
+        cfg = self.config
+        cmd = info["command"]
+        v, w = self.base_lin_vel(data), self.base_ang_vel(data)
+        g = self.projected_gravity(data)
+        q, qd = self.joint_pos(data), self.joint_vel(data)
+        tau = self.pd_torque(data, self.joint_targets(action)) - self._kd * qd
+        ref, stance = self.reference(info)
+        contact = self.foot_contact(data)
+        foot_pos = data.site_xpos[self._foot_sites]
+        valid_history = info["step"] > 1  # finite differences need one step of this episode
+        foot_speed = jnp.linalg.norm((foot_pos - info["last_foot_pos"])[:, :2], axis=-1) / cfg.ctrl_dt
+        foot_speed = jnp.where(valid_history, foot_speed, 0.0)
+
+        diff = jnp.linalg.norm(q - ref)
+        joint_pos = jnp.exp(-2.0 * diff) - 0.2 * jnp.clip(diff, 0.0, 0.5)
+
+        swing = ~stance
+        clearance = jnp.abs(foot_pos[:, 2] - cfg.target_feet_height) < 0.01
+        contact_filt = contact | stance | info["last_contact"]
+        air_time = info["feet_air_time"] + cfg.ctrl_dt
+        first_contact = (info["feet_air_time"] > 0.0) & contact_filt
+
+        def band(dist, lo, hi):
+            d_min = jnp.clip(dist - lo, -0.5, 0.0)
+            d_max = jnp.clip(dist - hi, 0.0, 0.5)
+            return 0.5 * (jnp.exp(-jnp.abs(d_min) * 100.0) + jnp.exp(-jnp.abs(d_max) * 100.0))
+
+        feet_dist = jnp.linalg.norm(foot_pos[0, :2] - foot_pos[1, :2])
+        knees = data.xpos[self._knee_bodies]
+        knee_dist = jnp.linalg.norm(knees[0, :2] - knees[1, :2])
+
+        lin_err = jnp.linalg.norm(cmd[:2] - v[:2])
+        ang_err = jnp.abs(cmd[2] - w[2])
+
+        speed, command_x = jnp.abs(v[0]), jnp.abs(cmd[0])
+        too_low, too_high = speed < 0.5 * command_x, speed > 1.2 * command_x
+        low_speed = jnp.where(too_low, -1.0, jnp.where(too_high, 0.0, 1.2))
+        low_speed = jnp.where(jnp.sign(v[0]) != jnp.sign(cmd[0]), -2.0, low_speed)
+        low_speed = low_speed * (command_x > 0.1)
+
+        yaw_roll = jnp.linalg.norm(q[jnp.array(cfg.hip_yaw_roll_joints[:2])] - self._default_joints[jnp.array(cfg.hip_yaw_roll_joints[:2])])
+        yaw_roll += jnp.linalg.norm(q[jnp.array(cfg.hip_yaw_roll_joints[2:])] - self._default_joints[jnp.array(cfg.hip_yaw_roll_joints[2:])])
+        yaw_roll = jnp.clip(yaw_roll - 0.1, 0.0, 50.0)
+
+        euler = math.quat_to_euler(self.base_quat(data))
+        stance_f = stance.astype(jnp.float32)
+        stance_height = jnp.sum(foot_pos[:, 2] * stance_f) / jnp.maximum(jnp.sum(stance_f), 1.0)
+        base_acc = jnp.where(valid_history, jnp.linalg.norm(info["last_base_vel"] - data.qvel[:6]), 0.0)
+
+        a, a1, a2 = action, info["last_action"], info["last_last_action"]
+        return {
+            "joint_pos": joint_pos,
+            "feet_clearance": jnp.sum(clearance * swing),
+            "feet_contact_number": jnp.mean(jnp.where(contact == stance, 1.0, -0.3)),
+            "feet_air_time": jnp.sum(jnp.clip(air_time, 0.0, 0.5) * first_contact),
+            "foot_slip": jnp.sum(jnp.sqrt(foot_speed + 1e-8) * contact),
+            "feet_distance": band(feet_dist, cfg.min_feet_distance, cfg.max_feet_distance),
+            "knee_distance": band(knee_dist, cfg.min_feet_distance, cfg.max_feet_distance / 2.0),
+            "tracking_lin_vel": jnp.exp(-jnp.sum((cmd[:2] - v[:2]) ** 2) * cfg.tracking_sigma),
+            "tracking_ang_vel": jnp.exp(-((cmd[2] - w[2]) ** 2) * cfg.tracking_sigma),
+            "vel_mismatch_exp": 0.5 * (jnp.exp(-10.0 * v[2] ** 2) + jnp.exp(-5.0 * jnp.linalg.norm(w[:2]))),
+            "low_speed": low_speed,
+            "track_vel_hard": 0.5 * (jnp.exp(-10.0 * lin_err) + jnp.exp(-10.0 * ang_err)) - 0.2 * (lin_err + ang_err),
+            "default_joint_pos": jnp.exp(-100.0 * yaw_roll) - 0.01 * jnp.linalg.norm(q - self._default_joints),
+            "orientation": 0.5 * (jnp.exp(-10.0 * jnp.sum(jnp.abs(euler[:2]))) + jnp.exp(-20.0 * jnp.linalg.norm(g[:2]))),
+            "base_height": jnp.exp(-100.0 * jnp.abs(data.qpos[2] - stance_height - cfg.base_height_target)),
+            "base_acc": jnp.exp(-3.0 * base_acc),
+            "action_smoothness": jnp.sum((a1 - a) ** 2) + jnp.sum((a + a2 - 2.0 * a1) ** 2) + 0.05 * jnp.sum(jnp.abs(a)),
+            "torques": jnp.sum(tau**2),
+            "dof_vel": jnp.sum(qd**2),
+            "dof_acc": jnp.sum(((qd - info["last_joint_vel"]) / cfg.ctrl_dt) ** 2),
+        }
+
+    def _after_step_info(self, data, info):
+        _, stance = self.reference(info)
+        contact = self.foot_contact(data)
+        contact_filt = contact | stance | info["last_contact"]
+        air_time = info["feet_air_time"] + self.config.ctrl_dt
+        info["feet_air_time"] = jnp.where(contact_filt, 0.0, air_time)
+        info["last_contact"] = contact
+        info["last_foot_pos"] = data.site_xpos[self._foot_sites]
+        info["last_last_action"] = info["last_action"]
+        info["last_base_vel"] = data.qvel[:6]
+        return info

@@ -1,0 +1,215 @@
+"""Configuration: frozen dataclasses with a docstring per field.
+
+Static fields (sizes, counts) are closed over by ``jit``. The dynamic PPO hyperparameters are
+gathered into ``PPOHparams``, a pytree of arrays that can be vmapped, like the freeze mask.
+Validation happens in ``__post_init__``, so an impossible config fails before anything compiles.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import jax.numpy as jnp
+
+from ptrl_jax.freeze import FREEZE_PRESETS
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Actor and critic MLPs (paper Fig. 3: 512-256-128, ELU)."""
+
+    actor_hidden: tuple[int, ...] = (512, 256, 128)
+    """Actor hidden sizes; the paper's L1 is hidden[0] x hidden[1], L2 hidden[1] x hidden[2]."""
+    critic_hidden: tuple[int, ...] = (512, 256, 128)
+    """Critic hidden sizes."""
+    activation: str = "elu"
+    """Hidden activation: elu, tanh or relu."""
+    init_noise_std: float = 1.0
+    """Initial policy standard deviation (rsl_rl: 1.0)."""
+
+    def __post_init__(self):
+        if len(self.actor_hidden) != 3:
+            raise ValueError(
+                f"network.actor_hidden must have 3 layers (L1 and L2 are its hidden-to-hidden "
+                f"weights), got {self.actor_hidden}"
+            )
+        if any(h <= 0 for h in (*self.actor_hidden, *self.critic_hidden)):
+            raise ValueError("network hidden sizes must be positive")
+        if self.activation not in ("elu", "tanh", "relu"):
+            raise ValueError(f"network.activation must be elu, tanh or relu, got {self.activation!r}")
+        if self.init_noise_std <= 0:
+            raise ValueError(f"network.init_noise_std must be > 0, got {self.init_noise_std}")
+
+
+class PPOHparams(NamedTuple):
+    """The dynamic PPO hyperparameters: arrays, so they can be vmapped across variants."""
+
+    learning_rate: Any
+    clip_epsilon: Any
+    value_coef: Any
+    entropy_coef: Any
+    gamma: Any
+    gae_lambda: Any
+    max_grad_norm: Any
+    desired_kl: Any
+    min_learning_rate: Any
+    max_learning_rate: Any
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """PPO, paper Table III plus rsl_rl's defaults for what the table leaves out."""
+
+    num_envs: int = 1024
+    """Parallel environments (static)."""
+    unroll_length: int = 24
+    """Steps per environment per iteration (rsl_rl: 24)."""
+    num_epochs: int = 5
+    """Passes over each batch (rsl_rl: 5)."""
+    num_minibatches: int = 4
+    """Minibatches per epoch (rsl_rl: 4)."""
+    num_iterations: int = 100
+    """PPO iterations (rollout + update) for this stage."""
+    normalize_observations: bool = True
+    """Running mean/std normalisation of actor and critic inputs."""
+    clip_value_loss: bool = True
+    """Clipped value loss, as rsl_rl."""
+    adaptive_lr: bool = True
+    """Adaptive-KL learning rate (paper: 'lr 1e-3 adaptive'); False keeps it fixed."""
+    learning_rate: float = 1e-3
+    """Initial learning rate (Table III)."""
+    clip_epsilon: float = 0.2
+    """PPO ratio clip (Table III); also the value clip."""
+    value_coef: float = 1.0
+    """Value-loss coefficient (Table III)."""
+    entropy_coef: float = 0.01
+    """Entropy bonus (rsl_rl: 0.01)."""
+    gamma: float = 0.998
+    """Discount (Table III)."""
+    gae_lambda: float = 0.95
+    """GAE lambda (Table III)."""
+    max_grad_norm: float = 1.0
+    """Global-norm gradient clip (rsl_rl: 1.0)."""
+    desired_kl: float = 0.01
+    """Adaptive-KL target (rsl_rl: 0.01)."""
+    min_learning_rate: float = 1e-5
+    """Lower bound of the adaptive learning rate."""
+    max_learning_rate: float = 1e-2
+    """Upper bound of the adaptive learning rate."""
+
+    def __post_init__(self):
+        for name in ("num_envs", "unroll_length", "num_epochs", "num_minibatches", "num_iterations"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"ppo.{name} must be >= 1, got {getattr(self, name)}")
+        batch = self.num_envs * self.unroll_length
+        if batch % self.num_minibatches:
+            raise ValueError(
+                f"ppo.num_envs * ppo.unroll_length = {batch} is not divisible by "
+                f"ppo.num_minibatches = {self.num_minibatches}"
+            )
+        if not 0.0 < self.gamma <= 1.0:
+            raise ValueError(f"ppo.gamma must be in (0, 1], got {self.gamma}")
+        if not 0.0 <= self.gae_lambda <= 1.0:
+            raise ValueError(f"ppo.gae_lambda must be in [0, 1], got {self.gae_lambda}")
+        for name in ("learning_rate", "clip_epsilon", "max_grad_norm", "desired_kl", "min_learning_rate"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"ppo.{name} must be > 0, got {getattr(self, name)}")
+        if self.value_coef < 0 or self.entropy_coef < 0:
+            raise ValueError("ppo.value_coef and ppo.entropy_coef must be >= 0")
+        if not self.min_learning_rate <= self.learning_rate <= self.max_learning_rate:
+            raise ValueError(
+                f"ppo.learning_rate={self.learning_rate} must lie in [ppo.min_learning_rate="
+                f"{self.min_learning_rate}, ppo.max_learning_rate={self.max_learning_rate}]"
+            )
+
+    @property
+    def batch_size(self) -> int:
+        return self.num_envs * self.unroll_length
+
+    @property
+    def minibatch_size(self) -> int:
+        return self.batch_size // self.num_minibatches
+
+    @property
+    def env_steps_per_iteration(self) -> int:
+        return self.batch_size
+
+    def hparams(self) -> PPOHparams:
+        return PPOHparams(
+            *(jnp.asarray(getattr(self, f), jnp.float32) for f in PPOHparams._fields)
+        )
+
+
+@dataclass(frozen=True)
+class StageConfig:
+    """One training stage on one robot (the source SLRT or the target TLRT)."""
+
+    robot: str = "go2"
+    """Robot name from the env registry."""
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    """PPO settings of this stage."""
+    env: Any = None
+    """The robot's environment config (its family's dataclass); filled from the registry."""
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    """How report.md summarises the curves."""
+
+    threshold_fraction: float = 0.9
+    """Time-to-threshold uses this fraction of the scratch baseline's final reward."""
+    final_window: int = 10
+    """'Final reward' is the mean over this many last iterations."""
+
+    def __post_init__(self):
+        if not 0.0 < self.threshold_fraction <= 1.5:
+            raise ValueError(f"report.threshold_fraction must be in (0, 1.5], got {self.threshold_fraction}")
+        if self.final_window < 1:
+            raise ValueError("report.final_window must be >= 1")
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """A PTRL experiment: train the source, transfer, fine-tune every target variant."""
+
+    name: str = "go2_to_xbot"
+    """Experiment name; outputs go to runs/<name>/<timestamp>/."""
+    scale: str = "cpu"
+    """Preset scale: smoke (tests, < 2 min), cpu (<= 30 min on 2 cores), paper (GPU)."""
+    seed: int = 0
+    """Root PRNG seed of the whole program."""
+    seeds: int = 1
+    """Target seeds per freeze preset, batched with vmap."""
+    source: StageConfig = field(default_factory=StageConfig)
+    """Source robot training (SLRT)."""
+    target: StageConfig = field(default_factory=lambda: StageConfig(robot="xbot_l"))
+    """Target robot fine-tuning (TLRT)."""
+    freeze_presets: tuple[str, ...] = ("none", "L1", "L2", "L1+L2", "scratch")
+    """Target variants: what is transferred and frozen (scratch = no transfer, the baseline)."""
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+    """Actor-critic sizes, shared by source and target so the hidden layers transfer."""
+    report: ReportConfig = field(default_factory=ReportConfig)
+    """Report settings."""
+    runs_dir: str = "runs"
+    """Where run folders are created."""
+    progress: bool = True
+    """Show a progress bar per stage (host callback; no recompilation)."""
+    checkpoint: bool = True
+    """Write source.npz and target_<preset>_seed<k>.npz."""
+
+    def __post_init__(self):
+        if self.scale not in SCALES:
+            raise ValueError(f"scale must be one of {SCALES}, got {self.scale!r}")
+        if self.seeds < 1:
+            raise ValueError(f"seeds must be >= 1, got {self.seeds}")
+        if not self.freeze_presets:
+            raise ValueError("freeze_presets must name at least one preset")
+        bad = [p for p in self.freeze_presets if p not in FREEZE_PRESETS]
+        if bad:
+            raise ValueError(f"freeze_presets: unknown {bad}; choose from {list(FREEZE_PRESETS)}")
+        if len(set(self.freeze_presets)) != len(self.freeze_presets):
+            raise ValueError(f"freeze_presets has duplicates: {self.freeze_presets}")
+
+
+SCALES = ("smoke", "cpu", "paper")

@@ -1,0 +1,130 @@
+"""Freeze masks, the masked optimizer, and the PTRL transfer (paper Eq. 4-5, Algorithm 1).
+
+A freeze mask is a pytree shaped like the parameters whose leaves are bool arrays of the
+parameter's own shape (True = frozen). Array leaves, not Python bools, let every freeze
+variant share one compiled program under ``vmap``, and per-unit masks (a fraction of a layer)
+need no new code.
+
+Freezing under Adam takes three guards, each of which alone is not enough:
+1. gradients of frozen leaves are zeroed *before* the inner transform, so global-norm clipping
+   does not count them;
+2. the final directions of frozen leaves are zeroed, so non-zero moments (restored from
+   pretraining, say) cannot move them;
+3. frozen leaves' moments are carried over untouched: a frozen leaf keeps no moving state.
+``jnp.where`` is used throughout rather than ``g * mask``, since NaN * 0 is NaN.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import jax
+import jax.numpy as jnp
+
+from ptrl_jax.optim import Optimizer
+from ptrl_jax.types import Mask, Params
+
+# The paper's transferable hidden layers, by name (rsl_rl's actor.2 and actor.4).
+HIDDEN_LAYERS: dict[str, str] = {"L1": "layer_1", "L2": "layer_2"}
+
+
+class FreezePreset:
+    """What a preset transfers and what it freezes."""
+
+    def __init__(self, name: str, transfer: bool, frozen: tuple[str, ...]):
+        self.name, self.transfer, self.frozen = name, transfer, frozen
+
+    def __repr__(self) -> str:
+        return f"FreezePreset({self.name!r}, transfer={self.transfer}, frozen={self.frozen})"
+
+
+FREEZE_PRESETS: Mapping[str, FreezePreset] = {
+    "none": FreezePreset("none", transfer=True, frozen=()),
+    "L1": FreezePreset("L1", transfer=True, frozen=("L1",)),
+    "L2": FreezePreset("L2", transfer=True, frozen=("L2",)),
+    "L1+L2": FreezePreset("L1+L2", transfer=True, frozen=("L1", "L2")),
+    "scratch": FreezePreset("scratch", transfer=False, frozen=()),
+}
+
+
+def _path_names(path) -> tuple[str, ...]:
+    return tuple(str(getattr(k, "key", getattr(k, "name", k))) for k in path)
+
+
+def empty_mask(params: Params) -> Mask:
+    return jax.tree.map(lambda p: jnp.zeros(p.shape, bool), params)
+
+
+def layer_mask(params: Params, layers: tuple[str, ...]) -> Mask:
+    """Mask that freezes every leaf under ``actor/<layer>`` for the given paper layer names."""
+    unknown = [layer for layer in layers if layer not in HIDDEN_LAYERS]
+    if unknown:
+        raise ValueError(f"unknown layer(s) {unknown}; transferable layers are {list(HIDDEN_LAYERS)}")
+    names = {HIDDEN_LAYERS[layer] for layer in layers}
+
+    def leaf(path, p):
+        parts = _path_names(path)
+        frozen = len(parts) >= 2 and parts[0] == "actor" and parts[1] in names
+        return jnp.full(p.shape, frozen, bool)
+
+    return jax.tree_util.tree_map_with_path(leaf, params)
+
+
+def preset_mask(params: Params, preset: str) -> Mask:
+    if preset not in FREEZE_PRESETS:
+        raise ValueError(f"unknown freeze preset {preset!r}; choose from {list(FREEZE_PRESETS)}")
+    return layer_mask(params, FREEZE_PRESETS[preset].frozen)
+
+
+def count_frozen(mask: Mask) -> int:
+    return int(sum(jnp.sum(m) for m in jax.tree.leaves(mask)))
+
+
+def masked(inner: Optimizer, frozen: Mask) -> Optimizer:
+    """Wrap ``inner`` so that frozen leaves never move and keep their optimizer state.
+
+    ``frozen`` may be a traced value (the wrapper is built inside the jitted program), so one
+    compiled program serves every mask.
+    """
+    mask_def = jax.tree.structure(frozen)
+
+    def is_params_shaped(x) -> bool:
+        return jax.tree.structure(x) == mask_def if not isinstance(x, jax.Array) else False
+
+    def keep_frozen_state(new_state, old_state):
+        def pick(new, old):
+            if is_params_shaped(new):
+                return jax.tree.map(lambda m, n, o: jnp.where(m, o, n), frozen, new, old)
+            return new
+
+        return jax.tree.map(pick, new_state, old_state, is_leaf=is_params_shaped)
+
+    def update(grads, state, params=None):
+        grads = jax.tree.map(lambda m, g: jnp.where(m, jnp.zeros_like(g), g), frozen, grads)
+        direction, new_state = inner.update(grads, state, params)
+        direction = jax.tree.map(lambda m, d: jnp.where(m, jnp.zeros_like(d), d), frozen, direction)
+        return direction, keep_frozen_state(new_state, state)
+
+    return Optimizer(inner.init, update)
+
+
+def transfer(source_params: Params, target_params: Params, enabled: bool | jax.Array = True) -> Params:
+    """PTRL transfer: copy the source actor's hidden layers L1 and L2 into the target.
+
+    The target's input layer, output layer, log-std and the whole critic keep their fresh
+    initialisation, since observation and action sizes differ between robots. ``enabled`` may
+    be a traced bool so that the scratch baseline shares the program with the transfer variants.
+    """
+    out = jax.tree.map(lambda x: x, target_params)
+    actor = dict(out["actor"])
+    for name in HIDDEN_LAYERS.values():
+        src, dst = source_params["actor"][name], target_params["actor"][name]
+        for leaf in ("w", "b"):
+            if src[leaf].shape != dst[leaf].shape:
+                raise ValueError(
+                    f"cannot transfer actor/{name}/{leaf}: source shape {src[leaf].shape} "
+                    f"!= target shape {dst[leaf].shape} (hidden sizes must match)"
+                )
+        actor[name] = jax.tree.map(lambda s, d: jnp.where(enabled, s, d), src, dst)
+    out["actor"] = actor
+    return out

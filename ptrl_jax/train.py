@@ -1,0 +1,284 @@
+"""PPO as one jitted program: ``make_train(env, ppo, network) -> Trainer``.
+
+``trainer.train(key, hparams, frozen, params) -> (TrainState, metrics)`` runs
+``ppo.num_iterations`` iterations as a ``lax.scan``; each iteration is a rollout scan
+(``unroll_length`` vmapped env steps) followed by an SGD scan over epochs x minibatches.
+Everything is a pure function of named pytrees, so ``vmap`` batches seeds, hyperparameters and
+freeze masks, and the PTRL program (``program.py``) chains source and target training inside a
+single ``jit``. No I/O happens here; the optional ``progress`` hook is a ``jax.debug.callback``
+that the caller supplies.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ptrl_jax import distributions, normalization
+from ptrl_jax.config import NetworkConfig, PPOConfig, PPOHparams
+from ptrl_jax.freeze import masked
+from ptrl_jax.losses import LossInputs, compute_gae, ppo_loss
+from ptrl_jax.networks import init_actor_critic, policy_apply, value_apply
+from ptrl_jax.optim import (
+    adaptive_kl_learning_rate,
+    apply_updates,
+    chain,
+    clip_by_global_norm,
+    scale_by_adam,
+)
+from ptrl_jax.types import Mask, Observation, Params, PRNGKey, Transition
+
+ProgressFn = Callable[[dict], None]
+
+
+class EpisodeStats(NamedTuple):
+    """Per-env episode accumulators. ``last_*`` hold each env's most recent finished episode,
+    the rolling window rsl_rl reports (its mean over envs is the logged episode reward)."""
+
+    running_return: jax.Array
+    running_length: jax.Array
+    running_terms: dict
+    last_return: jax.Array
+    last_length: jax.Array
+    last_terms: dict
+    finished: jax.Array
+    """Episodes finished per env since the start of training."""
+
+
+class TrainState(NamedTuple):
+    params: Params
+    opt_state: Any
+    learning_rate: jax.Array
+    """Current (adaptive) learning rate."""
+    normalizer: dict
+    """RunningStats per observation key."""
+    env_state: Any
+    episodes: EpisodeStats
+    key: PRNGKey
+    iteration: jax.Array
+    env_steps: jax.Array
+    hparams: PPOHparams
+    frozen: Mask
+    """Freeze mask (True = frozen), shaped like params."""
+
+
+class Trainer(NamedTuple):
+    init_params: Callable[[PRNGKey], Params]
+    init: Callable[..., TrainState]
+    iteration: Callable[[TrainState], tuple[TrainState, dict]]
+    train: Callable[..., tuple[TrainState, dict]]
+    observation_sizes: dict
+
+
+def make_optimizer(frozen: Mask, max_grad_norm) -> Any:
+    return masked(chain(clip_by_global_norm(max_grad_norm), scale_by_adam()), frozen)
+
+
+def normalize_obs(normalizer: dict, obs: Observation, enabled: bool) -> Observation:
+    if not enabled:
+        return obs
+    return {k: normalization.normalize(normalizer[k], v) for k, v in obs.items()}
+
+
+def _tree_where(cond, a, b):
+    return jax.tree.map(lambda x, y: jnp.where(cond, x, y), a, b)
+
+
+def make_train(
+    env: Any,
+    ppo: PPOConfig,
+    network: NetworkConfig,
+    progress: ProgressFn | None = None,
+) -> Trainer:
+    """Build the PPO trainer for one (unbatched) env. ``progress`` receives a dict of scalars
+    each iteration through ``jax.debug.callback`` (the program stays one compiled graph)."""
+    obs_shapes = jax.eval_shape(env.reset, jax.random.PRNGKey(0)).obs
+    obs_sizes = {k: int(v.shape[-1]) for k, v in obs_shapes.items()}
+    action_size = env.action_size
+    reward_names = [f"reward/{k}" for k in env._reward_weights]  # noqa: SLF001 (env contract)
+    reset_fn = jax.vmap(env.reset)
+    step_fn = jax.vmap(env.step)
+
+    def init_params(key: PRNGKey) -> Params:
+        return init_actor_critic(key, network, obs_sizes["state"], obs_sizes["privileged_state"], action_size)
+
+    def init(key: PRNGKey, hparams: PPOHparams, frozen: Mask, params: Params) -> TrainState:
+        key, env_key = jax.random.split(key)
+        env_state = reset_fn(jax.random.split(env_key, ppo.num_envs))
+        n = ppo.num_envs
+        zeros = jnp.zeros(n)
+        terms = {k: zeros for k in reward_names}
+        return TrainState(
+            params=params,
+            opt_state=make_optimizer(frozen, hparams.max_grad_norm).init(params),
+            learning_rate=jnp.asarray(hparams.learning_rate, jnp.float32),
+            normalizer={k: normalization.init(s) for k, s in obs_sizes.items()},
+            env_state=env_state,
+            episodes=EpisodeStats(zeros, zeros, terms, zeros, zeros, terms, zeros),
+            key=key,
+            iteration=jnp.zeros((), jnp.int32),
+            env_steps=jnp.zeros((), jnp.int32),
+            hparams=hparams,
+            frozen=frozen,
+        )
+
+    # ----- rollout ---------------------------------------------------------------------------------
+    def rollout(state: TrainState):
+        def env_step(carry, _):
+            env_state, episodes, new_stats, key = carry
+            key, action_key = jax.random.split(key)
+            obs = env_state.obs
+            obs_n = normalize_obs(state.normalizer, obs, ppo.normalize_observations)
+            out = policy_apply(state.params, obs_n, network)
+            action = distributions.sample(action_key, out.mean, out.std)
+            next_state = step_fn(env_state, action)
+            info = next_state.info
+            final_n = normalize_obs(state.normalizer, info["final_obs"], ppo.normalize_observations)
+            transition = Transition(
+                observation=obs_n,
+                action=action,
+                log_prob=distributions.log_prob(action, out.mean, out.std),
+                action_mean=out.mean,
+                action_std=out.std,
+                reward=next_state.reward,
+                termination=info["termination"],
+                truncation=info["truncation"],
+                final_observation=final_n,
+            )
+            new_stats = {k: normalization.update(new_stats[k], obs[k]) for k in new_stats}
+            episodes = _track_episodes(episodes, next_state)
+            extras = {
+                "nonfinite": jnp.sum(info["nonfinite"]),
+                "terms": {k: jnp.mean(v) for k, v in next_state.metrics.items()},
+            }
+            return (next_state, episodes, new_stats, key), (transition, extras)
+
+        key, rollout_key = jax.random.split(state.key)
+        (env_state, episodes, new_stats, _), (transitions, extras) = jax.lax.scan(
+            env_step,
+            (state.env_state, state.episodes, state.normalizer, rollout_key),
+            None,
+            length=ppo.unroll_length,
+        )
+        return env_state, episodes, new_stats, key, transitions, extras
+
+    # ----- update ------------------------------------------------------------------------------------
+    def loss_fn(params, batch: Transition, inputs: LossInputs, hparams: PPOHparams):
+        out = policy_apply(params, batch.observation, network)
+        value = value_apply(params, batch.observation, network)
+        terms = ppo_loss(
+            out.mean, out.std, value, inputs,
+            hparams.clip_epsilon, hparams.value_coef, hparams.entropy_coef, ppo.clip_value_loss,
+        )
+        kl = jnp.mean(distributions.kl_divergence(batch.action_mean, batch.action_std, out.mean, out.std))
+        return terms.total, (terms, kl)
+
+    grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
+
+    def make_sgd_step(hp: PPOHparams, frozen: Mask):
+        optimizer = make_optimizer(frozen, hp.max_grad_norm)
+
+        def sgd_step(carry, minibatch):
+            params, opt_state, lr = carry
+            batch, inputs = minibatch
+            (_, (terms, kl)), grads = grad_fn(params, batch, inputs, hp)
+            if ppo.adaptive_lr:
+                # rsl_rl adapts the rate from this minibatch's KL before taking the step.
+                lr = adaptive_kl_learning_rate(lr, kl, hp.desired_kl, hp.min_learning_rate, hp.max_learning_rate)
+            direction, new_opt_state = optimizer.update(grads, opt_state, params)
+            new_params = apply_updates(params, direction, lr)
+            # A non-finite gradient skips the update (and is counted) instead of poisoning params.
+            finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(g)) for g in jax.tree.leaves(grads)]))
+            params = _tree_where(finite, new_params, params)
+            opt_state = _tree_where(finite, new_opt_state, opt_state)
+            metrics = {
+                "loss/total": terms.total, "loss/policy": terms.policy, "loss/value": terms.value,
+                "loss/entropy": terms.entropy, "loss/clip_fraction": terms.clip_fraction,
+                "kl": kl, "skipped_updates": 1.0 - finite.astype(jnp.float32),
+            }
+            return (params, opt_state, lr), metrics
+
+        return sgd_step
+
+    def iteration(state: TrainState) -> tuple[TrainState, dict]:
+        hp = state.hparams
+        sgd_step = make_sgd_step(hp, state.frozen)
+        env_state, episodes, new_stats, key, tr, extras = rollout(state)
+
+        values = value_apply(state.params, tr.observation, network)
+        next_values = value_apply(state.params, tr.final_observation, network)
+        next_values = jnp.where(tr.termination > 0, 0.0, next_values)
+        advantages, returns = compute_gae(
+            tr.reward, values, next_values, tr.termination, tr.truncation, hp.gamma, hp.gae_lambda
+        )
+        advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+
+        flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
+        batch = jax.tree.map(flat, tr)
+        inputs = LossInputs(
+            action=batch.action, old_log_prob=batch.log_prob, old_value=flat(values),
+            advantage=flat(advantages), target_return=flat(returns),
+        )
+
+        def epoch(carry, epoch_key):
+            perm = jax.random.permutation(epoch_key, ppo.batch_size)
+            shuffle = lambda x: x[perm].reshape((ppo.num_minibatches, ppo.minibatch_size) + x.shape[1:])  # noqa: E731
+            minibatches = jax.tree.map(shuffle, (batch, inputs))
+            return jax.lax.scan(sgd_step, carry, minibatches)
+
+        key, sgd_key = jax.random.split(key)
+        (params, opt_state, lr), sgd_metrics = jax.lax.scan(
+            epoch, (state.params, state.opt_state, state.learning_rate),
+            jax.random.split(sgd_key, ppo.num_epochs),
+        )
+
+        env_steps = state.env_steps + ppo.batch_size
+        has_finished = episodes.finished > 0
+        denom = jnp.maximum(jnp.sum(has_finished), 1.0)
+        ep_mean = lambda x: jnp.sum(jnp.where(has_finished, x, 0.0)) / denom  # noqa: E731
+        metrics = {
+            "iteration": state.iteration + 1,
+            "env_steps": env_steps,
+            "episode_reward": ep_mean(episodes.last_return),
+            "episode_length": ep_mean(episodes.last_length),
+            "episodes_finished": jnp.sum(episodes.finished),
+            "step_reward": jnp.mean(tr.reward),
+            "learning_rate": lr,
+            "nonfinite_states": jnp.sum(extras["nonfinite"]),
+            **{f"episode_{k}": ep_mean(v) for k, v in episodes.last_terms.items()},
+            **{k: jnp.mean(v) for k, v in sgd_metrics.items()},
+        }
+        metrics["skipped_updates"] = jnp.sum(sgd_metrics["skipped_updates"])
+        if progress is not None:
+            jax.debug.callback(progress, {k: metrics[k] for k in ("iteration", "env_steps", "episode_reward")})
+        new_state = TrainState(
+            params=params, opt_state=opt_state, learning_rate=lr,
+            normalizer=new_stats if ppo.normalize_observations else state.normalizer,
+            env_state=env_state, episodes=episodes, key=key, iteration=state.iteration + 1,
+            env_steps=env_steps, hparams=hp, frozen=state.frozen,
+        )
+        return new_state, metrics
+
+    def train(key: PRNGKey, hparams: PPOHparams, frozen: Mask, params: Params):
+        state = init(key, hparams, frozen, params)
+        return jax.lax.scan(lambda s, _: iteration(s), state, None, length=ppo.num_iterations)
+
+    return Trainer(init_params, init, iteration, train, obs_sizes)
+
+
+def _track_episodes(ep: EpisodeStats, state) -> EpisodeStats:
+    done = state.done > 0
+    running_return = ep.running_return + state.reward
+    running_length = ep.running_length + 1.0
+    running_terms = {k: ep.running_terms[k] + state.metrics[k] for k in ep.running_terms}
+    return EpisodeStats(
+        running_return=jnp.where(done, 0.0, running_return),
+        running_length=jnp.where(done, 0.0, running_length),
+        running_terms={k: jnp.where(done, 0.0, v) for k, v in running_terms.items()},
+        last_return=jnp.where(done, running_return, ep.last_return),
+        last_length=jnp.where(done, running_length, ep.last_length),
+        last_terms={k: jnp.where(done, running_terms[k], ep.last_terms[k]) for k in running_terms},
+        finished=ep.finished + done,
+    )
