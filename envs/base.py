@@ -82,9 +82,10 @@ class LocomotionConfig:
     """Joint target = default pose + action_scale * action, rad."""
     clip_actions: float = 100.0
     """Raw actions are clipped to +-this before scaling (legged_gym's clip_actions)."""
-    solver_iterations: int = 1
-    """MJX constraint solver iterations (cost grows with them)."""
-    ls_iterations: int = 4
+    solver_iterations: int = 2
+    """MJX constraint solver iterations (cost grows with them). On Go2 standing under PD, 1
+    iteration drifted 0.11 m from the converged solution in base height; 2 stayed within 0.3 mm."""
+    ls_iterations: int = 2
     """MJX line-search iterations."""
     implicit_damping: bool = True
     """Integrate joint damping (the PD law's Kd) implicitly (MuJoCo's Euler 'eulerdamp').
@@ -290,11 +291,15 @@ class LeggedEnv(PipelineEnv):
 
         nonfinite = ~(jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel)))
         terms = self._reward_terms(data, action, info)
-        weighted = {k: self._reward_weights[k] * v * cfg.ctrl_dt for k, v in terms.items()}
+        # Explicit float32: a weakly-typed leaf (from Python-scalar arithmetic) would change the
+        # state's type after one step and make every jitted caller compile a second time.
+        weighted = {
+            k: jnp.asarray(self._reward_weights[k] * v * cfg.ctrl_dt, jnp.float32) for k, v in terms.items()
+        }
         reward = sum(weighted.values())
         if cfg.only_positive_rewards:
             reward = jnp.maximum(reward, 0.0)
-        reward = jnp.where(nonfinite, 0.0, reward)
+        reward = jnp.where(nonfinite, 0.0, reward).astype(jnp.float32)
         metrics = {f"reward/{k}": jnp.where(nonfinite, 0.0, v) for k, v in weighted.items()}
 
         info = self._after_step_info(data, info)

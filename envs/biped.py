@@ -228,8 +228,8 @@ class BipedEnv(LeggedEnv):
         diff = jnp.linalg.norm(q - ref)
         joint_pos = jnp.exp(-2.0 * diff) - 0.2 * jnp.clip(diff, 0.0, 0.5)
 
-        swing = ~stance
-        clearance = jnp.abs(foot_pos[:, 2] - cfg.target_feet_height) < 0.01
+        swing = jnp.where(stance, 0.0, 1.0)
+        clearance = jnp.where(jnp.abs(foot_pos[:, 2] - cfg.target_feet_height) < 0.01, 1.0, 0.0)
         contact_filt = contact | stance | info["last_contact"]
         air_time = info["feet_air_time"] + cfg.ctrl_dt
         first_contact = (info["feet_air_time"] > 0.0) & contact_filt
@@ -249,8 +249,8 @@ class BipedEnv(LeggedEnv):
         speed, command_x = jnp.abs(v[0]), jnp.abs(cmd[0])
         too_low, too_high = speed < 0.5 * command_x, speed > 1.2 * command_x
         low_speed = jnp.where(too_low, -1.0, jnp.where(too_high, 0.0, 1.2))
-        low_speed = jnp.where(jnp.sign(v[0]) != jnp.sign(cmd[0]), -2.0, low_speed)
-        low_speed = low_speed * (command_x > 0.1)
+        low_speed = jnp.where(v[0] * cmd[0] < 0.0, -2.0, low_speed)
+        low_speed = jnp.where(command_x > 0.1, low_speed, 0.0)
 
         yaw_roll = jnp.linalg.norm(q[jnp.array(cfg.hip_yaw_roll_joints[:2])] - self._default_joints[jnp.array(cfg.hip_yaw_roll_joints[:2])])
         yaw_roll += jnp.linalg.norm(q[jnp.array(cfg.hip_yaw_roll_joints[2:])] - self._default_joints[jnp.array(cfg.hip_yaw_roll_joints[2:])])

@@ -73,8 +73,10 @@ class QuadrupedConfig(LocomotionConfig):
 
 GO2_CONFIG = QuadrupedConfig(
     asset="go2.xml",
-    sim_dt=0.005,
-    decimation=4,
+    # 10 ms x 2 = 50 Hz as legged_gym's 5 ms x 4, at half the MJX cost. Under the PD hold with a
+    # 0.5 m/s push, base height stayed within 2 mm of a 2 ms-step reference over 2 s (MuJoCo C).
+    sim_dt=0.01,
+    decimation=2,
     kp=(40.0,),  # paper: Kp 40
     kd=(0.5,),  # paper: Kd 0.5
     action_scale=0.25,

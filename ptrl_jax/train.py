@@ -62,6 +62,8 @@ class TrainState(NamedTuple):
     hparams: PPOHparams
     frozen: Mask
     """Freeze mask (True = frozen), shaped like params."""
+    run_id: jax.Array
+    """Which vmapped run this is (variant * seeds + seed); tags progress callbacks."""
 
 
 class Trainer(NamedTuple):
@@ -104,7 +106,7 @@ def make_train(
     def init_params(key: PRNGKey) -> Params:
         return init_actor_critic(key, network, obs_sizes["state"], obs_sizes["privileged_state"], action_size)
 
-    def init(key: PRNGKey, hparams: PPOHparams, frozen: Mask, params: Params) -> TrainState:
+    def init(key: PRNGKey, hparams: PPOHparams, frozen: Mask, params: Params, run_id=0) -> TrainState:
         key, env_key = jax.random.split(key)
         env_state = reset_fn(jax.random.split(env_key, ppo.num_envs))
         n = ppo.num_envs
@@ -122,6 +124,7 @@ def make_train(
             env_steps=jnp.zeros((), jnp.int32),
             hparams=hparams,
             frozen=frozen,
+            run_id=jnp.asarray(run_id, jnp.int32),
         )
 
     # ----- rollout ---------------------------------------------------------------------------------
@@ -252,17 +255,20 @@ def make_train(
         }
         metrics["skipped_updates"] = jnp.sum(sgd_metrics["skipped_updates"])
         if progress is not None:
-            jax.debug.callback(progress, {k: metrics[k] for k in ("iteration", "env_steps", "episode_reward")})
+            jax.debug.callback(
+                progress,
+                {"run_id": state.run_id, **{k: metrics[k] for k in ("iteration", "env_steps", "episode_reward")}},
+            )
         new_state = TrainState(
             params=params, opt_state=opt_state, learning_rate=lr,
             normalizer=new_stats if ppo.normalize_observations else state.normalizer,
             env_state=env_state, episodes=episodes, key=key, iteration=state.iteration + 1,
-            env_steps=env_steps, hparams=hp, frozen=state.frozen,
+            env_steps=env_steps, hparams=hp, frozen=state.frozen, run_id=state.run_id,
         )
         return new_state, metrics
 
-    def train(key: PRNGKey, hparams: PPOHparams, frozen: Mask, params: Params):
-        state = init(key, hparams, frozen, params)
+    def train(key: PRNGKey, hparams: PPOHparams, frozen: Mask, params: Params, run_id=0):
+        state = init(key, hparams, frozen, params, run_id)
         return jax.lax.scan(lambda s, _: iteration(s), state, None, length=ppo.num_iterations)
 
     return Trainer(init_params, init, iteration, train, obs_sizes)
