@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from mujoco import mjx
 from brax import math
 from brax.envs.base import PipelineEnv, State
 from brax.io import mjcf
@@ -250,7 +251,11 @@ class LeggedEnv(PipelineEnv):
     def reset(self, rng: jax.Array) -> State:
         rng, k_init = jax.random.split(rng)
         qpos, qvel = self._initial_qpos_qvel(k_init)
-        data = self.pipeline_init(qpos, qvel)
+        # Kinematics only (body and site poses for the first observation): a full mjx.forward
+        # here would compile the collision and constraint pipeline a second time, and the
+        # first mjx.step recomputes all of it anyway.
+        data = mjx.make_data(self.sys).replace(qpos=qpos, qvel=qvel)
+        data = mjx.kinematics(self.sys, data)
         info = self._fresh_info(data, rng)
         obs, info = self._observe(data, info)
         info["final_obs"] = obs
@@ -272,7 +277,9 @@ class LeggedEnv(PipelineEnv):
         target = self.joint_targets(action)
 
         def substep(d, _):
-            return self._pipeline.step(self.sys, d, self.pd_torque(d, target), self._debug), None
+            # mjx.step on plain mjx.Data: Brax's pipeline wrapper would also rebuild its own
+            # link transforms and contacts every substep, which nothing here reads.
+            return mjx.step(self.sys, d.replace(ctrl=self.pd_torque(d, target))), None
 
         data, _ = jax.lax.scan(substep, data, None, length=self.config.decimation)
         return data

@@ -1,0 +1,227 @@
+"""The command line: ``python -m ptrl_jax.run exp=go2_to_xbot [scale=smoke] [key=value ...]``.
+
+Input and output live here, at the edge: the config is resolved and validated (a refused run
+writes nothing), the PTRL program is compiled once and run, and the run folder
+``runs/<exp>/<timestamp>/`` receives config.yaml, metrics.csv, checkpoints, curves.png and
+report.md.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ptrl_jax import artifacts, summary
+from ptrl_jax.config import ExperimentConfig
+from ptrl_jax.overrides import ConfigError, load_experiment, parse_cli, to_dict
+from ptrl_jax.program import ProgramOutput, make_program
+
+USAGE = """usage: python -m ptrl_jax.run exp=NAME [scale=smoke|cpu|paper] [key=value ...]
+
+  exp        preset name in experiments/ (e.g. go2_to_xbot) or a path to a .yaml file
+  scale      smoke (tests, < 2 min), cpu (default, <= 30 min on 2 cores), paper (GPU)
+  key=value  any config key, dotted: seeds=3 target.ppo.learning_rate=3e-4
+             source.env.commands.lin_vel_x=[0,1] freeze_presets=[L2,scratch]
+"""
+
+
+class Progress:
+    """Host side of the progress callbacks: wall-clock stamps per iteration and a tqdm bar.
+
+    Callbacks arrive once per vmapped run per iteration; each stage's bar counts them all."""
+
+    def __init__(self, cfg: ExperimentConfig, show: bool):
+        n_targets = len(cfg.freeze_presets) * cfg.seeds
+        self.totals = {
+            "source": cfg.source.ppo.num_iterations,
+            "target": cfg.target.ppo.num_iterations * n_targets,
+        }
+        self.steps_per_call = {
+            "source": cfg.source.ppo.env_steps_per_iteration,
+            "target": cfg.target.ppo.env_steps_per_iteration,
+        }
+        self.show = show
+        self.lock = threading.Lock()
+        self.times: dict[tuple[str, int, int], float] = {}
+        self.stage_start: dict[str, float] = {}
+        self.counts = {"source": 0, "target": 0}
+        self.bars: dict[str, Any] = {}
+        self.t0 = time.monotonic()
+
+    def start(self) -> None:
+        self.t0 = time.monotonic()
+
+    def hook(self, stage: str):
+        def callback(d: dict) -> None:
+            now = time.monotonic() - self.t0
+            with self.lock:
+                self.times[(stage, int(d["run_id"]), int(d["iteration"]))] = now
+                if stage not in self.stage_start:
+                    self.stage_start[stage] = self.last_time_before(stage)
+                self.counts[stage] += 1
+                if self.show:
+                    self._update_bar(stage, now, float(d["episode_reward"]))
+
+        return callback
+
+    def last_time_before(self, stage: str) -> float:
+        if stage == "target" and self.times:
+            return max(t for (s, _, _), t in self.times.items() if s == "source")
+        return 0.0
+
+    def _update_bar(self, stage: str, now: float, reward: float) -> None:
+        from tqdm import tqdm
+
+        if stage not in self.bars:
+            for bar in self.bars.values():
+                bar.close()
+            self.bars[stage] = tqdm(total=self.totals[stage], desc=f"{stage:>6}", unit="it", dynamic_ncols=True)
+        bar = self.bars[stage]
+        bar.update(1)
+        elapsed = max(now - self.stage_start[stage], 1e-9)
+        sps = self.counts[stage] * self.steps_per_call[stage] / elapsed
+        bar.set_postfix_str(f"{sps:,.0f} env steps/s, reward {reward:.3f}")
+        if self.counts[stage] >= self.totals[stage]:
+            bar.close()
+
+    def close(self) -> None:
+        for bar in self.bars.values():
+            bar.close()
+
+
+def metric_rows(cfg: ExperimentConfig, out: ProgramOutput, times: dict) -> list[dict[str, Any]]:
+    rows = []
+    skip = ("iteration", "env_steps")
+
+    def add(stage, robot, preset, seed, run_id, metrics):
+        n = len(metrics["iteration"])
+        for i in range(n):
+            it = int(metrics["iteration"][i])
+            row = {
+                "stage": stage, "robot": robot, "preset": preset, "seed": seed, "iteration": it,
+                "env_steps": int(metrics["env_steps"][i]),
+                "wall_time_s": times.get((stage, run_id, it), float("nan")),
+            }
+            row.update({k: float(v[i]) for k, v in metrics.items() if k not in skip})
+            rows.append(row)
+
+    src = jax.device_get(out.source_metrics)
+    add("source", cfg.source.robot, "source", 0, 0, src)
+    tgt = jax.device_get(out.target_metrics)
+    for p, preset in enumerate(cfg.freeze_presets):
+        for s in range(cfg.seeds):
+            add("target", cfg.target.robot, preset, s, p * cfg.seeds + s, jax.tree.map(lambda x: x[p, s], tgt))
+    return rows
+
+
+def stage_meta(cfg: ExperimentConfig, stage: str, preset: str, seed: int) -> dict[str, Any]:
+    sc = getattr(cfg, stage)
+    return {
+        "robot": sc.robot, "stage": stage, "preset": preset, "seed": seed, "experiment": cfg.name,
+        "network": to_dict(cfg.network), "env": to_dict(sc.env),
+        "normalize_observations": sc.ppo.normalize_observations,
+    }
+
+
+def save_outputs(cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput, times: dict, extra_notes=()) -> dict:
+    rows = metric_rows(cfg, out, times)
+    artifacts.write_metrics_csv(run_dir / "metrics.csv", rows)
+    if cfg.checkpoint:
+        src = jax.device_get(out.source)
+        artifacts.save_checkpoint(
+            run_dir / "source.npz", src.params, src.normalizer, src.frozen, stage_meta(cfg, "source", "source", 0)
+        )
+        tgt = jax.device_get(out.target)
+        for p, preset in enumerate(cfg.freeze_presets):
+            for s in range(cfg.seeds):
+                pick = lambda x: x[p, s]  # noqa: E731
+                artifacts.save_checkpoint(
+                    run_dir / f"target_{preset}_seed{s}.npz",
+                    jax.tree.map(pick, tgt.params), jax.tree.map(pick, tgt.normalizer),
+                    jax.tree.map(pick, tgt.frozen), stage_meta(cfg, "target", preset, s),
+                )
+    curves = summary.curves_by_preset(rows)
+    table, threshold = summary.preset_summary(curves, cfg.report.threshold_fraction, cfg.report.final_window)
+    title = f"{cfg.name}: {cfg.source.robot} -> {cfg.target.robot} ({cfg.scale})"
+    source_curve = [(r["env_steps"], r["episode_reward"]) for r in rows if r["stage"] == "source"]
+    summary.plot_curves(run_dir / "curves.png", curves, title, source_curve)
+    src_final = np.mean([r for _, r in source_curve][-cfg.report.final_window:])
+    notes = [
+        f"Source {cfg.source.robot}: {cfg.source.ppo.num_iterations} iterations x "
+        f"{cfg.source.ppo.env_steps_per_iteration} env steps, final mean episode reward {src_final:.3f}",
+        f"Target {cfg.target.robot}: {cfg.target.ppo.num_iterations} iterations x "
+        f"{cfg.target.ppo.env_steps_per_iteration} env steps per run, {cfg.seeds} seed(s) per preset",
+        f"Final reward = mean over the last {cfg.report.final_window} iterations; AUC = reward "
+        f"integrated over env steps / steps (a mean reward over training)",
+        *extra_notes,
+    ]
+    artifacts.atomic_write_text(run_dir / "report.md", summary.format_report(title, table, threshold, notes))
+    return {"rows": rows, "summary": table, "threshold": threshold}
+
+
+def new_run_dir(cfg: ExperimentConfig) -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    base = Path(cfg.runs_dir) / cfg.name
+    run_dir = base / stamp
+    k = 1
+    while run_dir.exists():
+        run_dir = base / f"{stamp}-{k}"
+        k += 1
+    run_dir.mkdir(parents=True)
+    return run_dir
+
+
+def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool | None = None) -> dict:
+    """Compile and run the PTRL program for ``cfg``; write the run folder. Returns paths and
+    timings. Usable from notebooks as well as the CLI."""
+    show = cfg.progress if show_progress is None else show_progress
+    progress = Progress(cfg, show)
+    program = make_program(cfg, progress.hook)
+    key = jax.random.PRNGKey(cfg.seed)
+    t = time.monotonic()
+    compiled = jax.jit(program.run).lower(key).compile()
+    compile_s = time.monotonic() - t
+    run_dir = run_dir or new_run_dir(cfg)
+    artifacts.write_config(run_dir / "config.yaml", to_dict(cfg))
+    progress.start()
+    out = compiled(key)
+    out = jax.block_until_ready(out)
+    run_s = time.monotonic() - progress.t0
+    progress.close()
+    notes = [f"Compile {compile_s:.1f} s, run {run_s:.1f} s on {jax.devices()[0].platform.upper()} "
+             f"({jax.device_count()} device)"]
+    result = save_outputs(cfg, run_dir, out, progress.times, notes)
+    result.update({"run_dir": run_dir, "compile_s": compile_s, "run_s": run_s, "output": out})
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(USAGE)
+        return 0
+    try:
+        args = parse_cli(argv)
+        exp = args.pop("exp", None)
+        if exp is None:
+            raise ConfigError("exp=NAME is required (e.g. exp=go2_to_xbot)")
+        cfg = load_experiment(exp, args)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    result = run(cfg)
+    print(f"run folder: {result['run_dir']}")
+    print((result["run_dir"] / "report.md").read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

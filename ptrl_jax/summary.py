@@ -1,0 +1,119 @@
+"""Turn per-iteration metrics into curves and a report (paper Fig. 5 style). Host-side only."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+
+def curves_by_preset(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, np.ndarray]]:
+    """{preset: {"env_steps": [T], "wall_time_s": [T], "reward": [seeds, T]}} for target rows."""
+    grouped: dict[str, dict[int, list]] = defaultdict(lambda: defaultdict(list))
+    for r in rows:
+        if r["stage"] != "target":
+            continue
+        grouped[r["preset"]][int(r["seed"])].append(r)
+    out = {}
+    for preset, seeds in grouped.items():
+        runs = [sorted(v, key=lambda r: r["iteration"]) for _, v in sorted(seeds.items())]
+        out[preset] = {
+            "env_steps": np.array([r["env_steps"] for r in runs[0]], float),
+            "wall_time_s": np.array([r["wall_time_s"] for r in runs[0]], float),
+            "reward": np.array([[r["episode_reward"] for r in run] for run in runs], float),
+        }
+    return out
+
+
+def preset_summary(
+    curves: Mapping[str, Mapping[str, np.ndarray]], threshold_fraction: float, final_window: int
+) -> tuple[list[dict[str, Any]], float | None]:
+    """Per preset: final reward, normalised area under the curve, time and steps to threshold.
+
+    The threshold is ``threshold_fraction`` x the scratch baseline's final reward (or of the
+    best preset's, without a scratch run). Seeds that never reach it count as not reached.
+    """
+    finals = {p: c["reward"][:, -final_window:].mean(axis=1) for p, c in curves.items()}
+    reference = "scratch" if "scratch" in curves else max(finals, key=lambda p: finals[p].mean())
+    threshold = float(threshold_fraction * finals[reference].mean()) if curves else None
+    rows = []
+    for preset, c in curves.items():
+        reward = c["reward"]
+        steps, wall = c["env_steps"], c["wall_time_s"]
+        auc = np.trapezoid(reward, steps, axis=1) / max(steps[-1] - steps[0], 1.0) if len(steps) > 1 else reward[:, 0]
+        reached = reward >= threshold
+        first = [int(np.argmax(r)) if r.any() else None for r in reached]
+        t_steps = [steps[i] if i is not None else np.nan for i in first]
+        t_wall = [wall[i] if i is not None else np.nan for i in first]
+        rows.append(
+            {
+                "preset": preset,
+                "seeds": reward.shape[0],
+                "final_reward_mean": float(finals[preset].mean()),
+                "final_reward_std": float(finals[preset].std()),
+                "auc_mean": float(np.mean(auc)),
+                "auc_std": float(np.std(auc)),
+                "steps_to_threshold_mean": float(np.nanmean(t_steps)) if not np.all(np.isnan(t_steps)) else None,
+                "wall_s_to_threshold_mean": float(np.nanmean(t_wall)) if not np.all(np.isnan(t_wall)) else None,
+                "seeds_reaching_threshold": int(sum(i is not None for i in first)),
+            }
+        )
+    return rows, threshold
+
+
+def plot_curves(
+    path: Path, curves: Mapping[str, Mapping[str, np.ndarray]], title: str, source_curve=()
+) -> None:
+    """Target reward per preset (mean and spread over seeds), and the source curve beside it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_src, ax) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1, 1.6]})
+    if source_curve:
+        xs, ys = zip(*source_curve)
+        ax_src.plot(np.array(xs) / 1e6, ys, color="k")
+    ax_src.set_xlabel("source env steps (millions)")
+    ax_src.set_ylabel("mean episode reward")
+    ax_src.set_title("source (SLRT)")
+    ax_src.grid(alpha=0.3)
+    for preset, c in curves.items():
+        x = c["env_steps"] / 1e6
+        mean, std = c["reward"].mean(axis=0), c["reward"].std(axis=0)
+        style = "--" if preset == "scratch" else "-"
+        ax.plot(x, mean, style, label=preset)
+        ax.fill_between(x, mean - std, mean + std, alpha=0.2)
+    ax.set_xlabel("target env steps (millions)")
+    ax.set_ylabel("mean episode reward")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(title="freeze preset")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def format_report(
+    title: str, summary: Sequence[Mapping[str, Any]], threshold: float | None, notes: Sequence[str]
+) -> str:
+    def f(v, fmt="{:.3f}"):
+        return "n/a" if v is None or (isinstance(v, float) and np.isnan(v)) else fmt.format(v)
+
+    lines = [f"# {title}", ""]
+    lines += [f"- {n}" for n in notes]
+    lines += [
+        f"- Threshold for 'time to threshold': {f(threshold)} (episode reward)",
+        "",
+        "| preset | seeds | final reward (mean ± std) | AUC (mean ± std) | env steps to threshold | wall s to threshold | seeds reaching |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in summary:
+        lines.append(
+            f"| {r['preset']} | {r['seeds']} | {f(r['final_reward_mean'])} ± {f(r['final_reward_std'])} | "
+            f"{f(r['auc_mean'])} ± {f(r['auc_std'])} | {f(r['steps_to_threshold_mean'], '{:.0f}')} | "
+            f"{f(r['wall_s_to_threshold_mean'], '{:.1f}')} | {r['seeds_reaching_threshold']}/{r['seeds']} |"
+        )
+    return "\n".join(lines) + "\n"
