@@ -1,0 +1,93 @@
+"""Throughput benchmark (not a test): ``python experiments/bench.py [envs=1024] [iterations=5]``.
+
+Prints, for Go2 at ``envs`` parallel environments, measured side by side in one process:
+  - raw vmapped env steps/s (zero actions, no learning; a scan of the env step),
+  - training-loop env steps/s with rsl_rl's PPO schedule (24 steps/env, 5 epochs, 4 minibatches),
+  - their ratio,
+  - the same training loop with the progress callback, and its cost,
+  - compile time of the whole go2_to_xbot program (scale=cpu shapes),
+  - peak resident memory of the process.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import platform
+import resource
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+import envs  # noqa: E402
+from ptrl_jax.config import NetworkConfig, PPOConfig  # noqa: E402
+from ptrl_jax.freeze import empty_mask  # noqa: E402
+from ptrl_jax.overrides import load_experiment, parse_cli  # noqa: E402
+from ptrl_jax.program import make_program  # noqa: E402
+from ptrl_jax.train import make_train  # noqa: E402
+
+
+def timed(fn, *args, repeats=1):
+    out = jax.block_until_ready(fn(*args))  # compile + warm
+    t = time.perf_counter()
+    for _ in range(repeats):
+        out = jax.block_until_ready(fn(*args))
+    return out, (time.perf_counter() - t) / repeats
+
+
+def main(argv):
+    args = parse_cli(argv)
+    n = int(args.get("envs", 1024))
+    iters = int(args.get("iterations", 3))
+    robot = args.get("robot", "go2")
+    env = envs.make(robot)
+    ppo = PPOConfig(num_envs=n, num_iterations=iters)  # rsl_rl schedule: 24 x 5 epochs x 4 minibatches
+    net = NetworkConfig()
+    print(f"machine: {platform.processor() or platform.machine()}, {jax.device_count()} {jax.devices()[0].platform} device(s), jax {jax.__version__}")
+
+    # Raw env throughput: the same number of env steps as one training iteration.
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), n))
+    zeros = jnp.zeros((n, env.action_size))
+
+    @jax.jit
+    def raw(s):
+        return jax.lax.scan(lambda c, _: (jax.vmap(env.step)(c, zeros), None), s, None, length=ppo.unroll_length * iters)[0]
+
+    _, raw_s = timed(raw, states)
+    raw_sps = n * ppo.unroll_length * iters / raw_s
+
+    def train_sps(progress):
+        trainer = make_train(env, ppo, net, progress)
+        params = trainer.init_params(jax.random.PRNGKey(1))
+        state = jax.jit(trainer.init)(jax.random.PRNGKey(2), ppo.hparams(), empty_mask(params), params)
+        run = jax.jit(lambda s: jax.lax.scan(lambda c, _: trainer.iteration(c), s, None, length=iters))
+        _, secs = timed(run, state)
+        return n * ppo.unroll_length * iters / secs
+
+    train = train_sps(None)
+    calls = []
+    with_progress = train_sps(lambda d: calls.append(time.monotonic()))
+
+    cfg = load_experiment("go2_to_xbot", ["scale=cpu"])
+    program = make_program(cfg)
+    t = time.perf_counter()
+    jax.jit(program.run).lower(jax.random.PRNGKey(0)).compile()
+    compile_s = time.perf_counter() - t
+    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+    print(f"robot {robot}, {n} envs, {iters} iterations of {ppo.unroll_length} steps/env, "
+          f"{ppo.num_epochs} epochs x {ppo.num_minibatches} minibatches")
+    print(f"raw env steps/s:              {raw_sps:10,.0f}")
+    print(f"training env steps/s:         {train:10,.0f}")
+    print(f"training / raw:               {train / raw_sps:10.2f}")
+    print(f"training with progress hook:  {with_progress:10,.0f}  (cost {100 * (1 - with_progress / train):.1f} %)")
+    print(f"go2_to_xbot program compile:  {compile_s:10.1f} s (scale=cpu shapes)")
+    print(f"peak resident memory:         {peak_mib:10,.0f} MiB")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
