@@ -97,7 +97,12 @@ class Progress:
             bar.close()
 
 
-def metric_rows(cfg: ExperimentConfig, out: ProgramOutput, times: dict) -> list[dict[str, Any]]:
+def metric_rows(
+    cfg: ExperimentConfig, out: ProgramOutput, times: dict, stage_start: dict | None = None
+) -> list[dict[str, Any]]:
+    """One row per iteration per stage, preset and seed. ``wall_time_s`` counts from the start
+    of that row's stage (the target stage starts when the source stage ends)."""
+    stage_start = stage_start or {}
     rows = []
     skip = ("iteration", "env_steps")
 
@@ -108,7 +113,7 @@ def metric_rows(cfg: ExperimentConfig, out: ProgramOutput, times: dict) -> list[
             row = {
                 "stage": stage, "robot": robot, "preset": preset, "seed": seed, "iteration": it,
                 "env_steps": int(metrics["env_steps"][i]),
-                "wall_time_s": times.get((stage, run_id, it), float("nan")),
+                "wall_time_s": times.get((stage, run_id, it), float("nan")) - stage_start.get(stage, 0.0),
             }
             row.update({k: float(v[i]) for k, v in metrics.items() if k not in skip})
             rows.append(row)
@@ -131,8 +136,10 @@ def stage_meta(cfg: ExperimentConfig, stage: str, preset: str, seed: int) -> dic
     }
 
 
-def save_outputs(cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput, times: dict, extra_notes=()) -> dict:
-    rows = metric_rows(cfg, out, times)
+def save_outputs(
+    cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput, times: dict, extra_notes=(), stage_start=None
+) -> dict:
+    rows = metric_rows(cfg, out, times, stage_start)
     artifacts.write_metrics_csv(run_dir / "metrics.csv", rows)
     if cfg.checkpoint:
         src = jax.device_get(out.source)
@@ -160,7 +167,8 @@ def save_outputs(cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput, times
         f"Target {cfg.target.robot}: {cfg.target.ppo.num_iterations} iterations x "
         f"{cfg.target.ppo.env_steps_per_iteration} env steps per run, {cfg.seeds} seed(s) per preset",
         f"Final reward = mean over the last {cfg.report.final_window} iterations; AUC = reward "
-        f"integrated over env steps / steps (a mean reward over training)",
+        f"integrated over env steps / steps (a mean reward over training); wall time counts from "
+        f"the start of the target stage, all presets running together under vmap",
         *extra_notes,
     ]
     artifacts.atomic_write_text(run_dir / "report.md", summary.format_report(title, table, threshold, notes))
@@ -198,7 +206,7 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     progress.close()
     notes = [f"Compile {compile_s:.1f} s, run {run_s:.1f} s on {jax.devices()[0].platform.upper()} "
              f"({jax.device_count()} device)"]
-    result = save_outputs(cfg, run_dir, out, progress.times, notes)
+    result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start)
     result.update({"run_dir": run_dir, "compile_s": compile_s, "run_s": run_s, "output": out})
     return result
 
