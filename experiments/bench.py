@@ -11,7 +11,6 @@ Prints, for Go2 at ``envs`` parallel environments, measured side by side in one 
 
 from __future__ import annotations
 
-import dataclasses
 import platform
 import resource
 import sys

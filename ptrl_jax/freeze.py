@@ -89,7 +89,7 @@ def masked(inner: Optimizer, frozen: Mask) -> Optimizer:
     mask_def = jax.tree.structure(frozen)
 
     def is_params_shaped(x) -> bool:
-        return jax.tree.structure(x) == mask_def if not isinstance(x, jax.Array) else False
+        return not isinstance(x, jax.Array) and jax.tree.structure(x) == mask_def
 
     def keep_frozen_state(new_state, old_state):
         def pick(new, old):

@@ -1,6 +1,5 @@
 """Config resolution and refusal: bad input is refused before compiling, naming the key."""
 
-import os
 
 import pytest
 
