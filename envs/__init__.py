@@ -3,14 +3,23 @@
     import envs
     env = envs.make("go2")                      # default config
     env = envs.make("go2", envs.default_config("go2"))
+    gym_env = gymnasium.make("ptrl/Go2-v0")     # MuJoCo C, numpy (envs.gym_env)
 """
 
+import os
 import warnings
+
+# Offscreen rendering (Gymnasium's rgb_array, filmstrips) on headless machines: EGL. MuJoCo reads
+# this when it first loads, so it is set before anything imports mujoco; a user's choice wins.
+os.environ.setdefault("MUJOCO_GL", "egl")
 
 # Brax warns on every model load that its own pipelines are unmaintained; we only use its
 # PipelineEnv structure on MuJoCo MJX, which is maintained.
 warnings.filterwarnings("ignore", message="Brax System, piplines and environments", category=UserWarning)
 
 from envs.registry import ROBOTS, default_config, make, robot_names  # noqa: E402
+from envs.gym_env import GYM_IDS, LocomotionGymEnv, register as _register_gymnasium  # noqa: E402
 
-__all__ = ["ROBOTS", "default_config", "make", "robot_names"]
+_register_gymnasium()  # gymnasium.make("ptrl/Go2-v0") works once `envs` is imported
+
+__all__ = ["GYM_IDS", "ROBOTS", "LocomotionGymEnv", "default_config", "make", "robot_names"]

@@ -1,0 +1,90 @@
+"""The Gymnasium view on MuJoCo C: API conformance, rendering, and agreement with the MJX env."""
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from brax.envs.base import State
+from gymnasium.utils.env_checker import check_env
+from mujoco import mjx
+
+import envs
+
+
+@pytest.mark.parametrize("robot", envs.robot_names())
+class TestGymnasiumApi:
+    def test_check_env_passes(self, robot):
+        env = gymnasium.make(envs.GYM_IDS[robot])
+        check_env(env.unwrapped, skip_render_check=True)
+        assert env.spec is not None and env.spec.id == envs.GYM_IDS[robot]
+
+    def test_render_rgb_array(self, robot):
+        env = envs.LocomotionGymEnv(robot, render_mode="rgb_array", width=64, height=48)
+        env.reset(seed=0)
+        frame = env.render()
+        env.close()
+        assert frame.shape == (48, 64, 3) and frame.dtype == np.uint8
+        assert frame.std() > 1.0  # the robot and the floor, not a blank image
+
+
+class TestVectorEnv:
+    def test_sync_vector_env_steps(self):
+        vec = gymnasium.make_vec(envs.GYM_IDS["go2"], num_envs=2, vectorization_mode="sync")
+        obs, _ = vec.reset(seed=0)
+        assert obs.shape == (2, 45) and obs.dtype == np.float32
+        obs, reward, terminated, truncated, _ = vec.step(np.zeros((2, 12), np.float32))
+        assert obs.shape == (2, 45) and reward.shape == (2,) and not terminated.any()
+        vec.close()
+
+
+class TestFixedCommand:
+    def test_reset_option_holds_the_command(self):
+        env = envs.LocomotionGymEnv("go2")
+        obs, info = env.reset(seed=1, options={"command": (0.5, 0.0, 0.25)})
+        for _ in range(3):
+            obs, *_, info = env.step(np.zeros(12, np.float32))
+        np.testing.assert_allclose(info["command"], [0.5, 0.0, 0.25])
+        # Table I: the command sits at obs[36:39], scaled by (2, 2, 0.25).
+        np.testing.assert_allclose(obs[36:39], [1.0, 0.0, 0.0625], atol=1e-6)
+
+    def test_bad_action_shape_is_refused(self):
+        env = envs.LocomotionGymEnv("go2")
+        env.reset(seed=0)
+        with pytest.raises(ValueError, match="expects"):
+            env.step(np.zeros(3, np.float32))
+
+
+def mjx_state_like(gym_env):
+    """An MJX env state holding exactly the MuJoCo C env's current state."""
+    e = gym_env.mjx_env
+    data = mjx.make_data(e.sys).replace(
+        qpos=jnp.asarray(gym_env.data.qpos, jnp.float32), qvel=jnp.asarray(gym_env.data.qvel, jnp.float32)
+    )
+    data = mjx.kinematics(e.sys, data)
+    obs, info = e._observe(data, dict(gym_env._info))
+    info["final_obs"] = obs
+    return State(data, obs, jnp.zeros(()), jnp.zeros(()), {}, info)
+
+
+@pytest.mark.parametrize("robot", envs.robot_names())
+class TestSimToSimAgreement:
+    """MJX (float32) and MuJoCo C (float64) step the same model with the same solver settings.
+    Over the first 10 control steps of an open-loop action sequence they agree within:"""
+
+    QPOS_TOL = 2e-3  # rad or m
+    REWARD_TOL = 2e-3  # per-step reward (dt-weighted)
+
+    def test_first_steps_agree(self, robot):
+        gym_env = envs.LocomotionGymEnv(robot)
+        gym_env.reset(seed=3, options={"command": (0.5, 0.0, 0.0)})
+        state = mjx_state_like(gym_env)
+        step = jax.jit(gym_env.mjx_env.step)
+        n = gym_env.action_space.shape[0]
+        for t in range(10):
+            action = (0.5 * np.sin(0.3 * t + np.arange(n))).astype(np.float32)
+            _, reward_c, terminated, _, _ = gym_env.step(action)
+            state = step(state, jnp.asarray(action))
+            assert not terminated and float(state.done) == 0.0
+            np.testing.assert_allclose(np.asarray(state.pipeline_state.qpos), gym_env.data.qpos, atol=self.QPOS_TOL)
+            assert abs(float(state.reward) - reward_c) < self.REWARD_TOL
