@@ -1,9 +1,14 @@
-"""Deterministic evaluation rollouts of a trained policy (the walking check).
+"""Deterministic evaluation rollouts of a trained policy: the walking check and sim-to-sim.
 
     python -m ptrl_jax.evaluate ckpt=runs/go2_to_xbot/<stamp>/source.npz vx=0.5 seconds=20
+    python -m ptrl_jax.evaluate ckpt=... sim=mujoco        # MJX and MuJoCo C, side by side
+    python -m ptrl_jax.evaluate ckpt=... mcap=rollout.mcap # also write the rollout for Foxglove
 
 The policy's mean action is applied (no sampling), the command is held fixed, and the episode
-time limit is lifted, so the rollout ends only by a fall or after ``seconds``.
+time limit is lifted, so the rollout ends only by a fall or after ``seconds``. ``sim=mjx`` (the
+default) rolls out the training env; ``sim=mujoco`` also rolls out the same policy in the MuJoCo
+C env (``envs.gym_env``: same model, observation and reward code, another physics engine) and
+prints both results.
 """
 
 from __future__ import annotations
@@ -11,18 +16,20 @@ from __future__ import annotations
 import dataclasses
 import json
 import sys
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import envs
-from ptrl_jax.artifacts import load_checkpoint
+from ptrl_jax.artifacts import CheckpointError, load_checkpoint
 from ptrl_jax.config import NetworkConfig
 from ptrl_jax.networks import policy_apply
 from ptrl_jax.overrides import ConfigError, apply_overrides, flatten, parse_cli
 from ptrl_jax.train import normalize_obs
+
+SIMS = ("mjx", "mujoco")
 
 
 def fixed_command_config(env_cfg: Any, command: tuple[float, float, float], seconds: float) -> Any:
@@ -39,6 +46,104 @@ def fixed_command_config(env_cfg: Any, command: tuple[float, float, float], seco
                                init_joint_noise=0.0, init_base_vel_noise=0.0)
 
 
+def make_actor(params: Any, normalizer: Any, network: NetworkConfig, normalize_observations: bool = True
+               ) -> Callable[[Mapping[str, jax.Array]], jax.Array]:
+    """Raw observation dict -> deterministic action (the Gaussian's mean)."""
+
+    def act(obs):
+        obs = normalize_obs(normalizer, obs, normalize_observations)
+        return policy_apply(params, obs, network).mean
+
+    return act
+
+
+def rollout_mjx(robot: str, env_cfg: Any, actor, command, seconds: float, seed: int = 0) -> dict[str, Any]:
+    """Records of a fixed-command rollout in the MJX env: each ``[T, ...]``; ``alive`` is False
+    from the step after a fall (the env auto-resets; those steps are not counted)."""
+    env = envs.make(robot, fixed_command_config(env_cfg, command, seconds))
+    steps = int(round(seconds / env.config.ctrl_dt))
+
+    def step(carry, _):
+        state, alive = carry
+        nxt = env.step(state, actor(state.obs))
+        data = nxt.pipeline_state
+        fell = nxt.info["termination"] > 0
+        record = {
+            "alive": alive, "fell": fell & alive,
+            "velocity": jnp.concatenate([env.base_lin_vel(data)[:2], env.base_ang_vel(data)[2:]]),
+            "height": data.qpos[2], "qpos": data.qpos, "qvel": data.qvel,
+            "command": state.info["command"], "terms": nxt.metrics,
+        }
+        return (nxt, alive & ~fell), record
+
+    @jax.jit
+    def rollout(key):
+        state = env.reset(key)
+        _, records = jax.lax.scan(step, (state, jnp.array(True)), None, length=steps)
+        return records
+
+    rec = jax.device_get(rollout(jax.random.PRNGKey(seed)))
+    rec["dt"] = env.config.ctrl_dt
+    rec["model"] = env.mj_model
+    return rec
+
+
+def rollout_mujoco(robot: str, env_cfg: Any, actor, command, seconds: float, seed: int = 0) -> dict[str, Any]:
+    """The same rollout in the MuJoCo C env (``envs.gym_env``), with the same records."""
+    gym_env = envs.LocomotionGymEnv(robot, fixed_command_config(env_cfg, command, seconds))
+    steps = int(round(seconds / gym_env.config.ctrl_dt))
+    act = jax.jit(lambda obs: actor(obs))
+    obs, info = gym_env.reset(seed=seed, options={"command": command})
+    full_obs = {"state": obs, "privileged_state": info["privileged_state"]}
+    keys = ("alive", "fell", "velocity", "height", "qpos", "qvel", "command")
+    rec: dict[str, list] = {k: [] for k in keys}
+    terms: dict[str, list] = {}
+    alive = True
+    for _ in range(steps):
+        action = np.asarray(act(full_obs)) if alive else np.zeros(gym_env.action_space.shape, np.float32)
+        cmd = info["command"]
+        obs, _, terminated, _, info = gym_env.step(action)
+        d = gym_env.data
+        rot = d.xmat[1].reshape(3, 3)
+        rec["alive"].append(alive)
+        rec["fell"].append(alive and terminated)
+        rec["velocity"].append(np.concatenate([(rot.T @ d.qvel[:3])[:2], d.qvel[5:6]]))
+        rec["height"].append(d.qpos[2])
+        rec["qpos"].append(d.qpos.copy())
+        rec["qvel"].append(d.qvel.copy())
+        rec["command"].append(cmd)
+        for k, v in info.items():
+            if k.startswith("reward/"):
+                terms.setdefault(k, []).append(v)
+        alive = alive and not terminated
+        full_obs = {"state": obs, "privileged_state": info["privileged_state"]}
+    out: dict[str, Any] = {k: np.asarray(v) for k, v in rec.items()}
+    out["terms"] = {k: np.asarray(v) for k, v in terms.items()}
+    out["dt"] = gym_env.config.ctrl_dt
+    out["model"] = gym_env.model
+    return out
+
+
+def summarize(rec: Mapping[str, Any], robot: str, command, seconds: float, sim: str) -> dict[str, Any]:
+    """Tracking metrics over the steps before any fall."""
+    alive = np.asarray(rec["alive"]).astype(bool)
+    vel = np.asarray(rec["velocity"])[alive]
+    cmd = np.asarray(command, np.float32)
+    mean_vel = vel.mean(axis=0) if len(vel) else np.full(3, np.nan)
+    return {
+        "robot": robot,
+        "sim": sim,
+        "command": [float(x) for x in cmd],
+        "seconds": seconds,
+        "fell": bool(np.asarray(rec["fell"]).any()),
+        "time_survived_s": float(alive.sum() * rec["dt"]),
+        "mean_velocity": [float(x) for x in mean_vel],
+        "forward_speed_error": float(abs(mean_vel[0] - cmd[0])),
+        "tracking_rmse": float(np.sqrt(np.mean((vel - cmd) ** 2))) if len(vel) else float("nan"),
+        "mean_base_height": float(np.asarray(rec["height"])[alive].mean()) if alive.any() else float("nan"),
+    }
+
+
 def evaluate_policy(
     robot: str,
     env_cfg: Any,
@@ -49,58 +154,60 @@ def evaluate_policy(
     seconds: float = 20.0,
     seed: int = 0,
     normalize_observations: bool = True,
+    sim: str = "mjx",
+    mcap_path: str | None = None,
 ) -> dict[str, Any]:
     """Roll out one env for ``seconds`` under a fixed command; report tracking and falls."""
-    env = envs.make(robot, fixed_command_config(env_cfg, command, seconds))
-    steps = int(round(seconds / env.config.ctrl_dt))
+    if sim not in SIMS:
+        raise ValueError(f"sim={sim!r}: choose one of {SIMS}")
+    actor = make_actor(params, normalizer, network, normalize_observations)
+    rollout = rollout_mjx if sim == "mjx" else rollout_mujoco
+    rec = rollout(robot, env_cfg, actor, tuple(float(c) for c in command), seconds, seed)
+    if mcap_path is not None:
+        write_mcap(mcap_path, rec)
+    return summarize(rec, robot, command, seconds, sim)
 
-    def step(carry, _):
-        state, alive = carry
-        obs = normalize_obs(normalizer, state.obs, normalize_observations)
-        action = policy_apply(params, obs, network).mean
-        nxt = env.step(state, action)
-        data = nxt.pipeline_state
-        vel = jnp.concatenate([env.base_lin_vel(data)[:2], env.base_ang_vel(data)[2:]])
-        fell = nxt.info["termination"] > 0
-        record = {"alive": alive, "velocity": vel, "height": data.qpos[2], "fell": fell & alive}
-        return (nxt, alive & ~fell), record
 
-    @jax.jit
-    def rollout(key):
-        state = env.reset(key)
-        _, records = jax.lax.scan(step, (state, jnp.array(True)), None, length=steps)
-        return records
+def write_mcap(path: str, rec: Mapping[str, Any]) -> dict[str, int]:
+    from ptrl_jax.mcap_log import write_rollout
 
-    rec = jax.device_get(rollout(jax.random.PRNGKey(seed)))
-    alive = rec["alive"].astype(bool)
-    vel = rec["velocity"][alive]
-    cmd = np.asarray(command, np.float32)
-    mean_vel = vel.mean(axis=0) if len(vel) else np.full(3, np.nan)
-    fell = bool(rec["fell"].any())
-    return {
-        "robot": robot,
-        "command": [float(x) for x in cmd],
-        "seconds": seconds,
-        "fell": fell,
-        "time_survived_s": float(alive.sum() * env.config.ctrl_dt),
-        "mean_velocity": [float(x) for x in mean_vel],
-        "forward_speed_error": float(abs(mean_vel[0] - cmd[0])),
-        "tracking_rmse": float(np.sqrt(np.mean((vel - cmd) ** 2))) if len(vel) else float("nan"),
-        "mean_base_height": float(rec["height"][alive].mean()) if alive.any() else float("nan"),
-    }
+    alive = np.asarray(rec["alive"]).astype(bool)
+    return write_rollout(
+        path, rec["model"], rec["dt"], np.asarray(rec["qpos"])[alive], np.asarray(rec["qvel"])[alive],
+        np.asarray(rec["command"])[alive], {k: np.asarray(v)[alive] for k, v in rec["terms"].items()},
+    )
 
 
 def policy_from_checkpoint(path: str) -> dict[str, Any]:
     ckpt = load_checkpoint(path)
     meta = ckpt["meta"]
-    robot = meta["robot"]
+    robot = meta.get("robot")
+    if robot not in envs.ROBOTS:
+        raise CheckpointError(f"checkpoint {path}: robot {robot!r} is not one of {envs.robot_names()}")
     env_cfg = apply_overrides(envs.default_config(robot), flatten(meta.get("env", {})))
     network = apply_overrides(NetworkConfig(), flatten(meta.get("network", {})))
-    normalizer = {
-        k: type_stats(v) for k, v in ckpt["normalizer"].items()
-    }
+    normalizer = {k: type_stats(v) for k, v in ckpt["normalizer"].items()}
+    check_policy_fits_robot(path, ckpt["params"], robot, env_cfg)
     return {"robot": robot, "env": env_cfg, "network": network, "params": ckpt["params"],
             "normalizer": normalizer, "normalize_observations": meta.get("normalize_observations", True)}
+
+
+def check_policy_fits_robot(path: str, params: Any, robot: str, env_cfg: Any) -> None:
+    """Refuse weights whose input or output size is not this robot's (another robot's policy)."""
+    try:
+        actor = params["actor"]
+        w_in = np.asarray(actor["layer_0"]["w"])
+        w_out = np.asarray(actor[f"layer_{len(actor) - 1}"]["w"])
+    except (KeyError, TypeError):
+        raise CheckpointError(f"checkpoint {path}: no actor/layer_0 ... weights in it") from None
+    env = envs.make(robot, env_cfg)
+    obs_size = int(jax.eval_shape(env.reset, jax.random.PRNGKey(0)).obs["state"].shape[-1])
+    if w_in.shape[0] != obs_size:
+        raise CheckpointError(f"checkpoint {path}: actor/layer_0/w takes {w_in.shape[0]} inputs, but robot "
+                              f"{robot!r} observations have {obs_size} (weights of another robot?)")
+    if w_out.shape[1] != env.action_size:
+        raise CheckpointError(f"checkpoint {path}: the actor outputs {w_out.shape[1]} actions, but robot "
+                              f"{robot!r} has {env.action_size} (weights of another robot?)")
 
 
 def type_stats(d: Mapping[str, Any]):
@@ -109,28 +216,49 @@ def type_stats(d: Mapping[str, Any]):
     return RunningStats(mean=jnp.asarray(d["mean"]), m2=jnp.asarray(d["m2"]), count=jnp.asarray(d["count"]))
 
 
+KNOWN_ARGS = ("ckpt", "vx", "vy", "yaw", "seconds", "sim", "seed", "mcap")
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = parse_cli(sys.argv[1:] if argv is None else argv)
+        unknown = sorted(set(args) - set(KNOWN_ARGS))
+        if unknown:
+            raise ConfigError(f"unknown argument(s) {unknown}; known: {', '.join(KNOWN_ARGS)}")
         if "ckpt" not in args:
             raise ConfigError("ckpt=PATH is required (a source.npz or target_*.npz of a run)")
-        policy = policy_from_checkpoint(args.pop("ckpt"))
-        command = (float(args.pop("vx", 0.5)), float(args.pop("vy", 0.0)), float(args.pop("yaw", 0.0)))
-        seconds = float(args.pop("seconds", 20.0))
-        sim = args.pop("sim", "mjx")
-        if sim != "mjx":
-            raise ConfigError(f"sim={sim!r}: only sim=mjx exists so far")
-        if args:
-            raise ConfigError(f"unknown argument(s) {sorted(args)}; known: ckpt, vx, vy, yaw, seconds, sim")
-    except (ConfigError, ValueError) as e:
+        command = (float(args.get("vx", 0.5)), float(args.get("vy", 0.0)), float(args.get("yaw", 0.0)))
+        seconds = float(args.get("seconds", 20.0))
+        seed = int(args.get("seed", 0))
+        sim = args.get("sim", "mjx")
+        if sim not in SIMS:
+            raise ConfigError(f"sim={sim!r}: choose one of {', '.join(SIMS)}")
+        if seconds <= 0:
+            raise ConfigError(f"seconds={seconds}: must be > 0")
+        policy = policy_from_checkpoint(args["ckpt"])
+    except (ConfigError, CheckpointError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    result = evaluate_policy(
-        policy["robot"], policy["env"], policy["params"], policy["normalizer"], policy["network"],
-        command, seconds, normalize_observations=policy["normalize_observations"],
-    )
-    print(json.dumps(result, indent=2))
+    common = dict(robot=policy["robot"], env_cfg=policy["env"], params=policy["params"],
+                  normalizer=policy["normalizer"], network=policy["network"], command=command,
+                  seconds=seconds, seed=seed, normalize_observations=policy["normalize_observations"])
+    results = [evaluate_policy(**common, sim="mjx", mcap_path=args.get("mcap") if sim == "mjx" else None)]
+    if sim == "mujoco":
+        results.append(evaluate_policy(**common, sim="mujoco", mcap_path=args.get("mcap")))
+        print(format_side_by_side(results))
+    print(json.dumps(results if len(results) > 1 else results[0], indent=2))
+    if "mcap" in args:
+        print(f"wrote {args['mcap']}")
     return 0
+
+
+def format_side_by_side(results: list[dict[str, Any]]) -> str:
+    rows = [("metric", *[r["sim"] for r in results])]
+    for key in ("fell", "time_survived_s", "mean_velocity", "forward_speed_error", "tracking_rmse", "mean_base_height"):
+        fmt = lambda v: ", ".join(f"{x:.3f}" for x in v) if isinstance(v, list) else (f"{v:.3f}" if isinstance(v, float) else str(v))  # noqa: E731
+        rows.append((key, *[fmt(r[key]) for r in results]))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(row, widths)) for row in rows)
 
 
 if __name__ == "__main__":
