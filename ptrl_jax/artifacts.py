@@ -131,3 +131,64 @@ def read_metrics_csv(path: Path) -> list[dict[str, Any]]:
             except ValueError:
                 pass
     return rows
+
+
+# ----- resumable program state ---------------------------------------------------------------------
+def _state_key(path) -> str:
+    return jax.tree_util.keystr(path)
+
+
+def save_state(path: Path, state: Any, meta: Mapping[str, Any]) -> None:
+    """Every leaf of a pytree (the whole program state), keyed by its path, plus JSON ``meta``.
+    Atomic: a kill at any moment leaves the previous file or the new one, never half of one."""
+    arrays = {_state_key(p): np.asarray(leaf) for p, leaf in jax.tree_util.tree_leaves_with_path(state)}
+    arrays["__meta__"] = np.frombuffer(json.dumps({"format": CHECKPOINT_FORMAT, **meta}).encode(), np.uint8)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def load_state(path: Path, template: Any) -> tuple[Any, dict[str, Any]]:
+    """Load a state saved by ``save_state`` into the structure of ``template`` (a pytree of
+    arrays or ShapeDtypeStructs). Every missing, extra or differently shaped leaf is an error
+    that names the leaf."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"resume state {path} does not exist")
+    try:
+        with np.load(path) as z:
+            flat = {k: z[k] for k in z.files}
+    except Exception as e:
+        raise CheckpointError(f"resume state {path} is unreadable (truncated or corrupted?): {e}") from None
+    if "__meta__" not in flat:
+        raise CheckpointError(f"{path} has no '__meta__' entry: not a ptrl_jax resume state")
+    meta = json.loads(bytes(flat.pop("__meta__")).decode())
+    leaves_with_path, treedef = jax.tree_util.tree_flatten_with_path(template)
+    expected = [_state_key(p) for p, _ in leaves_with_path]
+    missing = [k for k in expected if k not in flat]
+    extra = sorted(set(flat) - set(expected))
+    if missing or extra:
+        raise CheckpointError(
+            f"resume state {path} does not match this experiment: "
+            f"missing {missing[:3]}{'...' if len(missing) > 3 else ''} "
+            f"unexpected {extra[:3]}{'...' if len(extra) > 3 else ''} (another robot or config?)"
+        )
+    leaves = []
+    for (p, like), key in zip(leaves_with_path, expected):
+        value = flat[key]
+        if value.shape != tuple(like.shape) or value.dtype != like.dtype:
+            raise CheckpointError(
+                f"resume state {path}: {key} is {value.dtype}{list(value.shape)}, this experiment "
+                f"needs {like.dtype}{list(like.shape)} (another robot, network or num_envs?)"
+            )
+        leaves.append(value)
+    return jax.tree_util.tree_unflatten(treedef, leaves), meta
+
+
+def read_state_meta(path: Path) -> dict[str, Any]:
+    """Only the JSON meta of a saved state (iterations, timings), without loading the arrays."""
+    try:
+        with np.load(path) as z:
+            return json.loads(bytes(z["__meta__"]).decode())
+    except Exception as e:
+        raise CheckpointError(f"resume state {path} is unreadable: {e}") from None

@@ -197,10 +197,16 @@ class ExperimentConfig:
     """Show a progress bar per stage (host callback; no recompilation)."""
     checkpoint: bool = True
     """Write source.npz and target_<preset>_seed<k>.npz."""
+    checkpoint_every: int = 10
+    """Save the whole program state (resume_state.npz) every this many iterations; the program
+    runs in slices this long, so it is also how soon Ctrl-C takes effect. 0: one slice, no
+    periodic saves."""
 
     def __post_init__(self):
         if self.scale not in SCALES:
             raise ValueError(f"scale must be one of {SCALES}, got {self.scale!r}")
+        if self.checkpoint_every < 0:
+            raise ValueError(f"checkpoint_every must be >= 0, got {self.checkpoint_every}")
         if self.seeds < 1:
             raise ValueError(f"seeds must be >= 1, got {self.seeds}")
         if not self.freeze_presets:

@@ -7,6 +7,14 @@ Every target variant (freeze preset) and every seed runs under ``vmap``: the pre
 only in two arrays, a transfer flag and a freeze mask, so one compiled program trains them all.
 Seed k uses the same target initialisation and env stream under every preset, so presets are
 compared on paired runs.
+
+The program is a function of a ``ProgramState`` (``init(key)`` builds the first one):
+``advance(state, budget)`` runs up to ``budget`` more iterations, each stage a ``while_loop``
+that starts from the state's own counters and the transfer happening when the source stage
+completes. One compiled ``advance`` runs a whole experiment in one call, or in slices with a
+checkpoint between them (``run.py``), or resumes an interrupted run from a saved state; every
+way gives bitwise the same result. It holds no host callbacks (except the optional progress
+hook), so XLA's persistent compilation cache can keep it between processes.
 """
 
 from __future__ import annotations
@@ -22,6 +30,22 @@ from ptrl_jax.freeze import FREEZE_PRESETS, empty_mask, preset_mask, transfer
 from ptrl_jax.train import ProgressFn, Trainer, TrainState, make_train
 
 
+class ProgramState(NamedTuple):
+    """Everything the PTRL program carries: enough to resume it exactly."""
+
+    source: TrainState
+    source_metrics: dict
+    """Per-iteration metrics of the source stage, leaves shaped [iterations] (filled as it runs)."""
+    targets: TrainState
+    """Target states, leaves shaped [presets, seeds, ...]; placeholders until the source is done."""
+    target_metrics: dict
+    """Leaves shaped [iterations, presets, seeds]."""
+    targets_started: jax.Array
+    """Whether the targets have been initialised from the trained source (transfer done)."""
+    target_key: jax.Array
+    """PRNG key of the target stage (initialisation and env streams)."""
+
+
 class ProgramOutput(NamedTuple):
     source: TrainState
     source_metrics: dict
@@ -33,12 +57,32 @@ class ProgramOutput(NamedTuple):
 
 
 class Program(NamedTuple):
+    init: Callable[[jax.Array], ProgramState]
+    """``init(key)``: the initial state (jit it)."""
+    advance: Callable[[ProgramState, jax.Array], ProgramState]
+    """``advance(state, budget)``: run up to ``budget`` more iterations, source stage first,
+    then (after the transfer) the target stage (jit it; ``budget`` is a traced int)."""
     run: Callable[[jax.Array], ProgramOutput]
-    """``run(key)``: the whole chain; jit it (``jax.jit(program.run)``)."""
+    """``run(key)``: ``output(advance(init(key), all))``, the whole chain in one function."""
     source_trainer: Trainer
     target_trainer: Trainer
     source_env: Any
     target_env: Any
+
+    @staticmethod
+    def output(state: ProgramState) -> ProgramOutput:
+        metrics = jax.tree.map(lambda x: jnp.moveaxis(x, 0, -1), state.target_metrics)
+        return ProgramOutput(state.source, state.source_metrics, state.targets, metrics)
+
+    @staticmethod
+    def iterations(state: ProgramState) -> tuple[int, int]:
+        """(source iterations done, target iterations done)."""
+        tgt = int(jax.device_get(state.targets.iteration).min()) if bool(state.targets_started) else 0
+        return int(state.source.iteration), tgt
+
+    @staticmethod
+    def finished(state: ProgramState, cfg: ExperimentConfig) -> bool:
+        return Program.iterations(state)[1] >= cfg.target.ppo.num_iterations
 
 
 def make_program(
@@ -53,20 +97,12 @@ def make_program(
     target = make_train(target_env, cfg.target.ppo, cfg.network, hook("target"))
     presets = cfg.freeze_presets
     n_seeds = cfg.seeds
+    n_source, n_target = cfg.source.ppo.num_iterations, cfg.target.ppo.num_iterations
 
-    def run(key: jax.Array) -> ProgramOutput:
-        source_key, target_key = jax.random.split(key)
-        init_key, train_key = jax.random.split(source_key)
-        source_params = source.init_params(init_key)
-        source_state, source_metrics = source.train(
-            train_key, cfg.source.ppo.hparams(), empty_mask(source_params), source_params
-        )
-
+    def init_targets(source_params, target_key) -> TrainState:
         template = jax.eval_shape(target.init_params, target_key)
-        masks = jax.tree.map(
-            lambda *m: jnp.stack(m),
-            *[preset_mask(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), template), p) for p in presets],
-        )
+        zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), template)
+        masks = jax.tree.map(lambda *m: jnp.stack(m), *[preset_mask(zeros, p) for p in presets])
         transfer_flags = jnp.array([FREEZE_PRESETS[p].transfer for p in presets])
         run_ids = jnp.arange(len(presets))[:, None] * n_seeds + jnp.arange(n_seeds)[None, :]
         seed_keys = jax.random.split(target_key, n_seeds)
@@ -75,12 +111,66 @@ def make_program(
         def one_target(seed_key, transfer_flag, mask, run_id):
             init_k, train_k = jax.random.split(seed_key)
             fresh = target.init_params(init_k)
-            params = transfer(source_state.params, fresh, transfer_flag)
-            return target.train(train_k, hparams, mask, params, run_id)
+            params = transfer(source_params, fresh, transfer_flag)
+            return target.init(train_k, hparams, mask, params, run_id)
 
         over_seeds = jax.vmap(one_target, in_axes=(0, None, None, 0))
-        over_presets = jax.vmap(over_seeds, in_axes=(None, 0, 0, 0))
-        target_state, target_metrics = over_presets(seed_keys, transfer_flags, masks, run_ids)
-        return ProgramOutput(source_state, source_metrics, target_state, target_metrics)
+        return jax.vmap(over_seeds, in_axes=(None, 0, 0, 0))(seed_keys, transfer_flags, masks, run_ids)
 
-    return Program(run, source, target, source_env, target_env)
+    batched_target_iteration = jax.vmap(jax.vmap(target.iteration))
+
+    def zeros_like_shapes(tree):
+        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), tree)
+
+    def init(key: jax.Array) -> ProgramState:
+        source_key, target_key = jax.random.split(key)
+        init_key, train_key = jax.random.split(source_key)
+        params = source.init_params(init_key)
+        src = source.init(train_key, cfg.source.ppo.hparams(), empty_mask(params), params)
+        src_metrics = jax.eval_shape(source.iteration, src)[1]
+        targets = jax.eval_shape(init_targets, params, target_key)
+        tgt_metrics = jax.eval_shape(batched_target_iteration, targets)[1]
+        return ProgramState(
+            source=src,
+            source_metrics=jax.tree.map(lambda s: jnp.zeros((n_source, *s.shape), s.dtype), src_metrics),
+            targets=zeros_like_shapes(targets),
+            target_metrics=jax.tree.map(lambda s: jnp.zeros((n_target, *s.shape), s.dtype), tgt_metrics),
+            targets_started=jnp.array(False),
+            target_key=target_key,
+        )
+
+    def source_body(carry):
+        state, done = carry
+        i = state.source.iteration
+        src, metrics = source.iteration(state.source)
+        buffers = jax.tree.map(lambda b, v: b.at[i].set(v), state.source_metrics, metrics)
+        return state._replace(source=src, source_metrics=buffers), done + 1
+
+    def target_body(carry):
+        state, done = carry
+        i = state.targets.iteration[0, 0]
+        tgt, metrics = batched_target_iteration(state.targets)
+        buffers = jax.tree.map(lambda b, v: b.at[i].set(v), state.target_metrics, metrics)
+        return state._replace(targets=tgt, target_metrics=buffers), done + 1
+
+    def start_targets(state: ProgramState) -> ProgramState:
+        return state._replace(targets=init_targets(state.source.params, state.target_key),
+                              targets_started=jnp.array(True))
+
+    def advance(state: ProgramState, budget: jax.Array) -> ProgramState:
+        done = jnp.zeros((), jnp.int32)
+        state, done = jax.lax.while_loop(
+            lambda c: (c[0].source.iteration < n_source) & (c[1] < budget), source_body, (state, done)
+        )
+        begin = (state.source.iteration >= n_source) & ~state.targets_started
+        state = jax.lax.cond(begin, start_targets, lambda s: s, state)
+        state, _ = jax.lax.while_loop(
+            lambda c: c[0].targets_started & (c[0].targets.iteration[0, 0] < n_target) & (c[1] < budget),
+            target_body, (state, done),
+        )
+        return state
+
+    def run(key: jax.Array) -> ProgramOutput:
+        return Program.output(advance(init(key), jnp.int32(n_source + n_target)))
+
+    return Program(init, advance, run, source, target, source_env, target_env)

@@ -3,11 +3,13 @@
 Input and output live here, at the edge: the config is resolved and validated (a refused run
 writes nothing), the PTRL program is compiled once and run, and the run folder
 ``runs/<exp>/<timestamp>/`` receives config.yaml, metrics.csv, checkpoints, curves.png and
-report.md.
+report.md. ``resume=runs/<exp>/<timestamp>`` continues a stopped or killed run from its
+last saved state (``resume_state.npz``) to the same result an uninterrupted run gives.
 """
 
 from __future__ import annotations
 
+import signal
 import sys
 import threading
 import time
@@ -17,13 +19,16 @@ from typing import Any
 
 import jax
 import numpy as np
+import yaml
 
 from ptrl_jax import artifacts, summary
 from ptrl_jax.config import ExperimentConfig
-from ptrl_jax.overrides import ConfigError, load_experiment, parse_cli, to_dict
+from ptrl_jax.artifacts import CheckpointError
+from ptrl_jax.overrides import ConfigError, build_config, flatten, load_experiment, parse_cli, to_dict
 from ptrl_jax.program import ProgramOutput, make_program
 
 USAGE = """usage: python -m ptrl_jax.run exp=NAME [scale=smoke|cpu|paper] [key=value ...]
+       python -m ptrl_jax.run resume=runs/NAME/STAMP
 
   exp        preset name in experiments/ (e.g. go2_to_xbot) or a path to a .yaml file
   scale      smoke (tests, < 2 min), cpu (default, <= 30 min on 2 cores), paper (GPU)
@@ -33,12 +38,16 @@ USAGE = """usage: python -m ptrl_jax.run exp=NAME [scale=smoke|cpu|paper] [key=v
 
 
 class Progress:
-    """Host side of the progress callbacks: wall-clock stamps per iteration and a tqdm bar.
+    """Wall-clock stamps per iteration, and with ``show`` a tqdm bar per stage.
 
-    Callbacks arrive once per vmapped run per iteration; each stage's bar counts them all."""
+    With ``show``, a ``jax.debug.callback`` stamps every iteration of every vmapped run as it
+    ends. Without it the program holds no host callback at all (so XLA's persistent cache can
+    keep it) and the stamps come from the slice boundaries of ``run`` instead, spread evenly over
+    the iterations of each slice (exact when ``checkpoint_every`` is 1)."""
 
     def __init__(self, cfg: ExperimentConfig, show: bool):
         n_targets = len(cfg.freeze_presets) * cfg.seeds
+        self.n_targets = n_targets
         self.totals = {
             "source": cfg.source.ppo.num_iterations,
             "target": cfg.target.ppo.num_iterations * n_targets,
@@ -56,9 +65,35 @@ class Progress:
         self.t0 = time.monotonic()
 
     def start(self) -> None:
-        self.t0 = time.monotonic()
+        # On resume, wall times continue from the last saved stamp (the downtime is not counted).
+        last = max(self.times.values(), default=0.0)
+        self.t0 = time.monotonic() - last
+
+    def restore(self, meta: dict) -> None:
+        """Wall-clock stamps and progress counts saved with a resume state."""
+        self.times = {(s, int(r), int(i)): float(t) for s, r, i, t in meta.get("times", [])}
+        self.stage_start = {k: float(v) for k, v in meta.get("stage_start", {}).items()}
+        for (stage, _, _) in self.times:
+            self.counts[stage] += 1
+
+    def record_slice(self, before: tuple[int, int], after: tuple[int, int], t_start: float) -> None:
+        """Stamp the (source, target) iterations a slice ran, where no callback did."""
+        t_end = time.monotonic() - self.t0
+        done = [("source", i) for i in range(before[0] + 1, after[0] + 1)]
+        done += [("target", i) for i in range(before[1] + 1, after[1] + 1)]
+        for k, (stage, it) in enumerate(done):
+            t = t_start + (t_end - t_start) * (k + 1) / len(done)
+            runs = range(self.n_targets) if stage == "target" else (0,)
+            if stage == "target" and "target" not in self.stage_start:
+                self.stage_start["target"] = self.last_time_before("target")
+            self.stage_start.setdefault("source", 0.0)
+            for r in runs:
+                self.times.setdefault((stage, r, it), t)
 
     def hook(self, stage: str):
+        if not self.show:
+            return None
+
         def callback(d: dict) -> None:
             now = time.monotonic() - self.t0
             with self.lock:
@@ -82,7 +117,8 @@ class Progress:
         if stage not in self.bars:
             for bar in self.bars.values():
                 bar.close()
-            self.bars[stage] = tqdm(total=self.totals[stage], desc=f"{stage:>6}", unit="it", dynamic_ncols=True)
+            self.bars[stage] = tqdm(total=self.totals[stage], initial=self.counts[stage] - 1, desc=f"{stage:>6}",
+                                    unit="it", dynamic_ncols=True)
         bar = self.bars[stage]
         bar.update(1)
         elapsed = max(now - self.stage_start[stage], 1e-9)
@@ -186,28 +222,124 @@ def new_run_dir(cfg: ExperimentConfig) -> Path:
     return run_dir
 
 
-def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool | None = None) -> dict:
+RESUME_STATE = "resume_state.npz"
+"""The whole program state, written every ``checkpoint_every`` iterations and on Ctrl-C/SIGTERM."""
+
+
+class StopRequest:
+    """Ctrl-C / SIGTERM set a flag instead of killing the process: the run saves its state at
+    the end of the current slice and exits cleanly. A second Ctrl-C aborts at once (the last
+    saved state is still there)."""
+
+    def __init__(self):
+        self.requested = False
+        self._previous: dict[int, Any] = {}
+
+    def _handler(self, signum, frame) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+        print(f"\n{signal.Signals(signum).name}: saving the run state at the next checkpoint "
+              f"(Ctrl-C again to abort now)", file=sys.stderr)
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        return False
+
+
+def save_resume_state(cfg: ExperimentConfig, run_dir: Path, state: Any, progress: "Progress") -> None:
+    times = [[s, r, i, t] for (s, r, i), t in progress.times.items()]
+    meta = {"experiment": cfg.name, "jax": jax.__version__, "times": times,
+            "stage_start": progress.stage_start,
+            "source_iteration": int(np.asarray(state.source.iteration)),
+            "target_iteration": int(np.asarray(state.targets.iteration).min())}
+    artifacts.save_state(run_dir / RESUME_STATE, state, meta)
+
+
+def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool | None = None,
+        resume_from: Path | None = None) -> dict:
     """Compile and run the PTRL program for ``cfg``; write the run folder. Returns paths and
-    timings. Usable from notebooks as well as the CLI."""
+    timings (``interrupted=True`` if it stopped early, with the state saved for ``resume``).
+    Usable from notebooks as well as the CLI.
+
+    The one compiled program is called in slices of ``cfg.checkpoint_every`` iterations (one
+    call when it is 0), and the whole state is saved between slices."""
     show = cfg.progress if show_progress is None else show_progress
     progress = Progress(cfg, show)
+    run_dir = resume_from or run_dir or new_run_dir(cfg)
     program = make_program(cfg, progress.hook)
     key = jax.random.PRNGKey(cfg.seed)
+    total = cfg.source.ppo.num_iterations + cfg.target.ppo.num_iterations
+    budget = np.int32(cfg.checkpoint_every or total)
     t = time.monotonic()
-    compiled = jax.jit(program.run).lower(key).compile()
+    init = jax.jit(program.init)
+    if resume_from is not None:
+        state, meta = artifacts.load_state(run_dir / RESUME_STATE, jax.eval_shape(init, key))
+        progress.restore(meta)
+    else:
+        state = init(key)
+    advance = jax.jit(program.advance).lower(state, budget).compile()
     compile_s = time.monotonic() - t
-    run_dir = run_dir or new_run_dir(cfg)
-    artifacts.write_config(run_dir / "config.yaml", to_dict(cfg))
-    progress.start()
-    out = compiled(key)
-    out = jax.block_until_ready(out)
+    if resume_from is None:
+        artifacts.write_config(run_dir / "config.yaml", to_dict(cfg))
+    interrupted = False
+    with StopRequest() as stop:
+        progress.start()
+        while not program.finished(state, cfg):
+            before, t_start = program.iterations(state), time.monotonic() - progress.t0
+            state = jax.block_until_ready(advance(state, budget))
+            progress.record_slice(before, program.iterations(state), t_start)
+            if cfg.checkpoint_every or stop.requested:
+                save_resume_state(cfg, run_dir, state, progress)
+            if stop.requested and not program.finished(state, cfg):
+                interrupted = True
+                break
     run_s = time.monotonic() - progress.t0
     progress.close()
+    if interrupted:
+        return {"run_dir": run_dir, "interrupted": True, "compile_s": compile_s, "run_s": run_s,
+                "state": state}
+    out = program.output(state)
     notes = [f"Compile {compile_s:.1f} s, run {run_s:.1f} s on {jax.devices()[0].platform.upper()} "
-             f"({jax.device_count()} device)"]
+             f"({jax.device_count()} device)" + (" (resumed)" if resume_from else "")]
     result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start)
-    result.update({"run_dir": run_dir, "compile_s": compile_s, "run_s": run_s, "output": out})
+    (run_dir / RESUME_STATE).unlink(missing_ok=True)  # finished: the final checkpoints replace it
+    result.update({"run_dir": run_dir, "compile_s": compile_s, "run_s": run_s, "output": out,
+                   "interrupted": False, "state": state})
     return result
+
+
+def resume(run_dir: Path, show_progress: bool | None = None) -> dict:
+    """Continue an interrupted run in its own folder from its last saved state."""
+    run_dir = Path(run_dir)
+    config_path = run_dir / "config.yaml"
+    if not config_path.is_file():
+        raise ConfigError(f"resume={run_dir}: no config.yaml there (is it a run folder?)")
+    if not (run_dir / RESUME_STATE).is_file():
+        done = (run_dir / "report.md").is_file()
+        raise ConfigError(f"resume={run_dir}: no {RESUME_STATE} there"
+                          + (" (the run finished; nothing to resume)" if done else ""))
+    with open(config_path) as f:
+        cfg = build_config(flatten(yaml.safe_load(f)))
+    return run(cfg, show_progress=show_progress, resume_from=run_dir)
+
+
+def _report_result(result: dict) -> int:
+    run_dir = result["run_dir"]
+    if result["interrupted"]:
+        print(f"stopped; state saved in {run_dir / RESUME_STATE}\n"
+              f"resume with: python -m ptrl_jax.run resume={run_dir}", file=sys.stderr)
+        return 130
+    print(f"run folder: {run_dir}")
+    print((run_dir / "report.md").read_text())
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -217,17 +349,19 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         args = parse_cli(argv)
+        if "resume" in args:
+            if len(args) > 1:
+                raise ConfigError(f"resume=DIR takes no other arguments (got {sorted(set(args) - {'resume'})}); "
+                                  "the run continues with its own config.yaml")
+            return _report_result(resume(Path(args["resume"])))
         exp = args.pop("exp", None)
         if exp is None:
             raise ConfigError("exp=NAME is required (e.g. exp=go2_to_xbot)")
         cfg = load_experiment(exp, args)
-    except ConfigError as e:
+    except (ConfigError, CheckpointError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    result = run(cfg)
-    print(f"run folder: {result['run_dir']}")
-    print((result["run_dir"] / "report.md").read_text())
-    return 0
+    return _report_result(run(cfg))
 
 
 if __name__ == "__main__":

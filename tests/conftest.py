@@ -21,3 +21,15 @@ def xbot_env():
     import envs
 
     return envs.make("xbot_l")
+
+
+@pytest.fixture(scope="session")
+def smoke_run(tmp_path_factory):
+    """One uninterrupted ``scale=smoke`` go2_to_xbot run, shared by the end-to-end and resume tests."""
+    from ptrl_jax import run as run_cli
+    from ptrl_jax.overrides import load_experiment
+
+    runs = tmp_path_factory.mktemp("runs")
+    cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"runs_dir={runs}"])
+    result = run_cli.run(cfg)
+    return cfg, result["run_dir"]

@@ -3,21 +3,11 @@
 import csv
 
 import numpy as np
-import pytest
 import yaml
 
-from ptrl_jax import artifacts, run as run_cli
-from ptrl_jax.overrides import load_experiment
+from ptrl_jax import artifacts
 
 PRESETS = ("none", "L1", "L2", "L1+L2", "scratch")
-
-
-@pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    runs = tmp_path_factory.mktemp("runs")
-    cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"runs_dir={runs}"])
-    result = run_cli.run(cfg)
-    return cfg, result["run_dir"]
 
 
 class TestSmokeRunOutputs:

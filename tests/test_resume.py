@@ -1,0 +1,141 @@
+"""Resume and faults: a killed run continues to the same result; bad checkpoints are named."""
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from ptrl_jax import artifacts, run as run_cli
+from ptrl_jax.artifacts import CheckpointError
+from ptrl_jax.evaluate import policy_from_checkpoint
+from ptrl_jax.overrides import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def start_smoke_run(runs_dir: Path) -> subprocess.Popen:
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(ROOT),
+        # Share the test session's compilation cache: the smoke program is already compiled.
+        "JAX_COMPILATION_CACHE_DIR": str(jax.config.jax_compilation_cache_dir),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "2",
+    }
+    cmd = [sys.executable, "-m", "ptrl_jax.run", "exp=go2_to_xbot", "scale=smoke", f"runs_dir={runs_dir}"]
+    return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def wait_for_saved_state(runs_dir: Path, proc: subprocess.Popen, timeout_s: float = 600) -> Path:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        found = list(runs_dir.glob(f"go2_to_xbot/*/{run_cli.RESUME_STATE}"))
+        if found:
+            return found[0].parent
+        if proc.poll() is not None:
+            pytest.fail(f"run ended before saving a state:\n{proc.stdout.read()}")
+        time.sleep(0.01)
+    proc.kill()
+    pytest.fail("no resume state appeared")
+
+
+def metrics_without_wall_time(run_dir: Path) -> list[dict]:
+    rows = list(csv.DictReader(open(run_dir / "metrics.csv")))
+    for r in rows:
+        r.pop("wall_time_s")
+    return rows
+
+
+class TestKillAndResume:
+    def test_kill_9_mid_run_then_resume_matches_uninterrupted(self, smoke_run, tmp_path):
+        _, reference = smoke_run
+        proc = start_smoke_run(tmp_path)
+        run_dir = wait_for_saved_state(tmp_path, proc)
+        proc.kill()  # SIGKILL: no handler runs
+        proc.wait()
+        assert not (run_dir / "report.md").exists(), "the run finished before it was killed"
+        saved_at = artifacts.read_state_meta(run_dir / run_cli.RESUME_STATE)["source_iteration"]
+
+        result = run_cli.resume(run_dir, show_progress=False)
+        assert not result["interrupted"]
+        assert saved_at >= 1
+        assert metrics_without_wall_time(run_dir) == metrics_without_wall_time(reference)
+        for ckpt in sorted(reference.glob("*.npz")):
+            ref, got = np.load(ckpt), np.load(run_dir / ckpt.name)
+            for key in ref.files:
+                if key != "meta":
+                    assert np.array_equal(ref[key], got[key]), (ckpt.name, key)  # bitwise
+        assert not (run_dir / run_cli.RESUME_STATE).exists()  # finished: state removed
+
+
+class TestCtrlC:
+    def test_sigint_saves_the_state_and_exits_cleanly(self, smoke_run, tmp_path):
+        proc = start_smoke_run(tmp_path)
+        run_dir = wait_for_saved_state(tmp_path, proc)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=600)
+        assert proc.returncode == 130, out
+        assert f"resume with: python -m ptrl_jax.run resume={run_dir}" in out
+        assert "Traceback" not in out
+        meta = artifacts.read_state_meta(run_dir / run_cli.RESUME_STATE)
+        assert meta["target_iteration"] < 2 and not (run_dir / "report.md").exists()
+
+
+class TestBadResumeState:
+    TEMPLATE = {"params": {"w": jax.ShapeDtypeStruct((3, 2), np.float32)}, "step": jax.ShapeDtypeStruct((), np.int32)}
+
+    def save(self, path, w_shape=(3, 2)):
+        tree = {"params": {"w": np.ones(w_shape, np.float32)}, "step": np.int32(4)}
+        artifacts.save_state(path, tree, {"note": "test"})
+
+    def test_round_trip(self, tmp_path):
+        self.save(tmp_path / "s.npz")
+        tree, meta = artifacts.load_state(tmp_path / "s.npz", self.TEMPLATE)
+        assert tree["params"]["w"].shape == (3, 2) and int(tree["step"]) == 4 and meta["note"] == "test"
+
+    def test_other_shapes_are_named(self, tmp_path):
+        self.save(tmp_path / "s.npz", w_shape=(5, 2))
+        with pytest.raises(CheckpointError, match=r"\['params'\]\['w'\] is float32\[5, 2\].*needs float32\[3, 2\]"):
+            artifacts.load_state(tmp_path / "s.npz", self.TEMPLATE)
+
+    def test_other_structure_is_named(self, tmp_path):
+        artifacts.save_state(tmp_path / "s.npz", {"params": {"v": np.ones(2)}, "step": np.int32(0)}, {})
+        with pytest.raises(CheckpointError, match=r"missing \[\"\['params'\]\['w'\]\"\]|missing \['\[.params.\]\[.w.\]'\]"):
+            artifacts.load_state(tmp_path / "s.npz", self.TEMPLATE)
+
+    def test_truncated_file(self, tmp_path):
+        self.save(tmp_path / "s.npz")
+        data = (tmp_path / "s.npz").read_bytes()
+        (tmp_path / "s.npz").write_bytes(data[: len(data) // 2])
+        with pytest.raises(CheckpointError, match="unreadable"):
+            artifacts.load_state(tmp_path / "s.npz", self.TEMPLATE)
+
+    def test_resume_of_a_folder_without_state(self, tmp_path):
+        (tmp_path / "config.yaml").write_text("name: go2_to_xbot\n")
+        with pytest.raises(ConfigError, match="no resume_state.npz"):
+            run_cli.resume(tmp_path)
+        assert run_cli.main([f"resume={tmp_path}"]) == 2
+
+
+class TestBadPolicyCheckpoint:
+    def test_truncated_checkpoint(self, smoke_run, tmp_path):
+        _, run_dir = smoke_run
+        data = (run_dir / "source.npz").read_bytes()
+        (tmp_path / "cut.npz").write_bytes(data[:1000])
+        with pytest.raises(CheckpointError, match="unreadable"):
+            policy_from_checkpoint(str(tmp_path / "cut.npz"))
+
+    def test_params_of_another_robot_are_refused(self, smoke_run, tmp_path):
+        _, run_dir = smoke_run
+        go2 = artifacts.load_checkpoint(run_dir / "source.npz")
+        xbot = artifacts.load_checkpoint(run_dir / "target_none_seed0.npz")
+        # XBot-L weights labelled as Go2: observation sizes 705 vs 45 differ.
+        artifacts.save_checkpoint(tmp_path / "mixed.npz", xbot["params"], go2["normalizer"], xbot["frozen"], go2["meta"])
+        with pytest.raises(CheckpointError, match=r"actor/layer_0/w.*705.*go2.*45"):
+            policy_from_checkpoint(str(tmp_path / "mixed.npz"))
