@@ -67,6 +67,22 @@ def main(argv):
         _, secs = timed(run, state)
         return n * ppo.unroll_length * iters / secs
 
+    # Rollout alone (env step + policy forward + sampling, as in training, no update).
+    trainer = make_train(env, ppo, net)
+    params = trainer.init_params(jax.random.PRNGKey(1))
+    from ptrl_jax import distributions  # noqa: E402
+    from ptrl_jax.networks import policy_apply  # noqa: E402
+
+    @jax.jit
+    def rollout(s, key):
+        def f(c, k):
+            out = policy_apply(params, c.obs, net)
+            return jax.vmap(env.step)(c, distributions.sample(k, out.mean, out.std)), None
+        return jax.lax.scan(f, s, jax.random.split(key, ppo.unroll_length * iters))[0]
+
+    _, rollout_s = timed(rollout, states, jax.random.PRNGKey(3))
+    rollout_sps = n * ppo.unroll_length * iters / rollout_s
+
     train = train_sps(None)
     calls = []
     with_progress = train_sps(lambda d: calls.append(time.monotonic()))
@@ -81,7 +97,19 @@ def main(argv):
     print(f"robot {robot}, {n} envs, {iters} iterations of {ppo.unroll_length} steps/env, "
           f"{ppo.num_epochs} epochs x {ppo.num_minibatches} minibatches")
     print(f"raw env steps/s:              {raw_sps:10,.0f}")
+    print(f"rollout (env + policy) steps/s:{rollout_sps:9,.0f}")
     print(f"training env steps/s:         {train:10,.0f}")
+    # What the PPO update costs: per sample and epoch, forward + backward of both MLPs is about
+    # 3 x 2 x (multiply-adds of one forward pass) FLOPs.
+    sizes = lambda i, h, o: [i, *h, o]  # noqa: E731
+    macs = lambda s: sum(a * b for a, b in zip(s[:-1], s[1:]))  # noqa: E731
+    obs = trainer.observation_sizes
+    per_sample = 6 * (macs(sizes(obs["state"], net.actor_hidden, env.action_size))
+                      + macs(sizes(obs["privileged_state"], net.critic_hidden, 1)))
+    update_s = n * ppo.unroll_length * iters / train - rollout_s
+    sgd_flops = per_sample * ppo.batch_size * ppo.num_epochs * iters
+    print(f"update share of training:     {100 * update_s / (update_s + rollout_s):10.0f} %  "
+          f"(~{sgd_flops / max(update_s, 1e-9) / 1e9:.0f} GFLOP/s in the SGD)")
     print(f"training / raw:               {train / raw_sps:10.2f}")
     print(f"training with progress hook:  {with_progress:10,.0f}  (cost {100 * (1 - with_progress / train):.1f} %)")
     print(f"go2_to_xbot program compile:  {compile_s:10.1f} s (scale=cpu shapes)")

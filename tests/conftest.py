@@ -1,7 +1,11 @@
 import os
 
-import jax
-import pytest
+# Headless offscreen rendering: MuJoCo picks its GL backend when first imported, and a test
+# module may import mujoco before `envs` sets this default.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
 
 # Repeated CI runs and test processes reuse compiled XLA programs (MJX steps take ~25 s to compile).
 _CACHE = os.environ.get("PTRL_JAX_CACHE", os.path.join(os.path.dirname(__file__), "..", ".jax_cache"))

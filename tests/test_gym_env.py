@@ -45,8 +45,8 @@ class TestFixedCommand:
         for _ in range(3):
             obs, *_, info = env.step(np.zeros(12, np.float32))
         np.testing.assert_allclose(info["command"], [0.5, 0.0, 0.25])
-        # Table I: the command sits at obs[36:39], scaled by (2, 2, 0.25).
-        np.testing.assert_allclose(obs[36:39], [1.0, 0.0, 0.0625], atol=1e-6)
+        # Table I: the command sits at obs[30:33], scaled by (2, 2, 0.25).
+        np.testing.assert_allclose(obs[30:33], [1.0, 0.0, 0.0625], atol=1e-6)
 
     def test_bad_action_shape_is_refused(self):
         env = envs.LocomotionGymEnv("go2")
@@ -70,10 +70,17 @@ def mjx_state_like(gym_env):
 @pytest.mark.parametrize("robot", envs.robot_names())
 class TestSimToSimAgreement:
     """MJX (float32) and MuJoCo C (float64) step the same model with the same solver settings.
-    Over the first 10 control steps of an open-loop action sequence they agree within:"""
+    Over the first 10 control steps of an open-loop action sequence they agree within these
+    tolerances (rad or m for qpos; per-step, dt-weighted reward).
 
-    QPOS_TOL = 2e-3  # rad or m
-    REWARD_TOL = 2e-3  # per-step reward (dt-weighted)
+    XBot-L's looser bound is a real engine difference, not float noise: for a box sole touching
+    the floor MJX keeps only the corners within 1 mm of the deepest one (``plane_convex``), so on
+    the same state it reported 2 contacts where MuJoCo C reported 5; the states then drift apart
+    by 3.5e-3 after one step and 3.7e-2 after ten. Go2's sphere feet have one contact each in
+    both engines and agree to 2e-3."""
+
+    QPOS_TOL = {"go2": 2e-3, "xbot_l": 5e-2}
+    REWARD_TOL = {"go2": 2e-3, "xbot_l": 1e-2}
 
     def test_first_steps_agree(self, robot):
         gym_env = envs.LocomotionGymEnv(robot)
@@ -86,5 +93,6 @@ class TestSimToSimAgreement:
             _, reward_c, terminated, _, _ = gym_env.step(action)
             state = step(state, jnp.asarray(action))
             assert not terminated and float(state.done) == 0.0
-            np.testing.assert_allclose(np.asarray(state.pipeline_state.qpos), gym_env.data.qpos, atol=self.QPOS_TOL)
-            assert abs(float(state.reward) - reward_c) < self.REWARD_TOL
+            np.testing.assert_allclose(np.asarray(state.pipeline_state.qpos), gym_env.data.qpos,
+                                       atol=self.QPOS_TOL[robot])
+            assert abs(float(state.reward) - reward_c) < self.REWARD_TOL[robot]
