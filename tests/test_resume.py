@@ -1,10 +1,12 @@
 """Resume and faults: a killed run continues to the same result; bad checkpoints are named."""
 
 import csv
+import dataclasses
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -27,6 +29,7 @@ def start_smoke_run(runs_dir: Path) -> subprocess.Popen:
         # Share the test session's compilation cache: the smoke program is already compiled.
         "JAX_COMPILATION_CACHE_DIR": str(jax.config.jax_compilation_cache_dir),
         "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "2",
+        "JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS": "0",  # as conftest: same HLO, same cache key
     }
     cmd = [sys.executable, "-m", "ptrl_jax.run", "exp=go2_to_xbot", "scale=smoke", f"runs_dir={runs_dir}"]
     return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -75,16 +78,32 @@ class TestKillAndResume:
 
 
 class TestCtrlC:
-    def test_sigint_saves_the_state_and_exits_cleanly(self, smoke_run, tmp_path):
-        proc = start_smoke_run(tmp_path)
-        run_dir = wait_for_saved_state(tmp_path, proc)
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=600)
-        assert proc.returncode == 130, out
-        assert f"resume with: python -m ptrl_jax.run resume={run_dir}" in out
-        assert "Traceback" not in out
+    def test_sigint_saves_the_state_and_exits_cleanly(self, smoke_run, tmp_path, capsys):
+        """In-process (the compiled smoke program is reused): a SIGINT arrives as soon as the
+        first state is saved; the run saves again at the end of that slice and stops."""
+        cfg, _ = smoke_run
+        cfg = dataclasses.replace(cfg, runs_dir=str(tmp_path))
+
+        def interrupt_when_saved():
+            deadline = time.monotonic() + 600
+            while time.monotonic() < deadline:
+                if list(tmp_path.glob(f"go2_to_xbot/*/{run_cli.RESUME_STATE}")):
+                    os.kill(os.getpid(), signal.SIGINT)
+                    return
+                time.sleep(0.005)
+
+        watcher = threading.Thread(target=interrupt_when_saved, daemon=True)
+        watcher.start()
+        result = run_cli.run(cfg)
+        watcher.join()
+        assert result["interrupted"], "the run finished before the signal took effect"
+        run_dir = result["run_dir"]
+        assert run_cli._report_result(result) == 130
+        assert f"resume with: python -m ptrl_jax.run resume={run_dir}" in capsys.readouterr().err
         meta = artifacts.read_state_meta(run_dir / run_cli.RESUME_STATE)
-        assert meta["target_iteration"] < 2 and not (run_dir / "report.md").exists()
+        assert meta["target_iteration"] < cfg.target.ppo.num_iterations
+        assert not (run_dir / "report.md").exists() and not (run_dir / "metrics.csv").exists()
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler restored
 
 
 class TestBadResumeState:
