@@ -11,8 +11,9 @@ import pytest  # noqa: E402
 _CACHE = os.environ.get("PTRL_JAX_CACHE", os.path.join(os.path.dirname(__file__), "..", ".jax_cache"))
 jax.config.update("jax_compilation_cache_dir", os.path.abspath(_CACHE))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)
-# Locations without the full Python traceback: otherwise the pytest frames end up in the HLO
-# metadata, and a CLI subprocess (tests/test_resume.py) misses the cache for the same program.
+# Locations without the full Python traceback, meant to let the CLI subprocess of
+# tests/test_resume.py share this process's compiled smoke program. Measured in CI: it still
+# compiles its own (a different cache key; cause not found), which costs about 2 minutes.
 jax.config.update("jax_include_full_tracebacks_in_locations", False)
 
 

@@ -26,10 +26,10 @@ def start_smoke_run(runs_dir: Path) -> subprocess.Popen:
     env = {
         **os.environ,
         "PYTHONPATH": str(ROOT),
-        # Share the test session's compilation cache: the smoke program is already compiled.
+        # The test session's compilation cache (the init and env programs hit it).
         "JAX_COMPILATION_CACHE_DIR": str(jax.config.jax_compilation_cache_dir),
         "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "2",
-        "JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS": "0",  # as conftest: same HLO, same cache key
+        "JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS": "0",  # as conftest (see there)
     }
     cmd = [sys.executable, "-m", "ptrl_jax.run", "exp=go2_to_xbot", "scale=smoke", f"runs_dir={runs_dir}"]
     return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
