@@ -74,16 +74,21 @@ class CheckpointError(ValueError):
     pass
 
 
+def _read_npz(path: Path, what: str) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz``; a missing or damaged file is a CheckpointError naming it."""
+    if not path.is_file():
+        raise CheckpointError(f"{what} {path} does not exist")
+    try:
+        with np.load(path) as z:
+            return {k: z[k] for k in z.files}
+    except Exception as e:  # zipfile / pickle / value errors of a damaged file
+        raise CheckpointError(f"{what} {path} is unreadable (truncated or corrupted?): {e}") from None
+
+
 def load_checkpoint(path: Path) -> dict[str, Any]:
     """Return {"params", "normalizer", "frozen": nested dicts of arrays, "meta": dict}."""
     path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"checkpoint {path} does not exist")
-    try:
-        with np.load(path) as z:
-            flat = {k: z[k] for k in z.files}
-    except Exception as e:  # zipfile / pickle / value errors of a damaged file
-        raise CheckpointError(f"checkpoint {path} is unreadable (truncated or corrupted?): {e}") from None
+    flat = _read_npz(path, "checkpoint")
     if "meta" not in flat:
         raise CheckpointError(f"checkpoint {path} has no 'meta' entry: not a ptrl_jax checkpoint")
     meta = json.loads(bytes(flat.pop("meta")).decode())
@@ -153,13 +158,7 @@ def load_state(path: Path, template: Any) -> tuple[Any, dict[str, Any]]:
     arrays or ShapeDtypeStructs). Every missing, extra or differently shaped leaf is an error
     that names the leaf."""
     path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"resume state {path} does not exist")
-    try:
-        with np.load(path) as z:
-            flat = {k: z[k] for k in z.files}
-    except Exception as e:
-        raise CheckpointError(f"resume state {path} is unreadable (truncated or corrupted?): {e}") from None
+    flat = _read_npz(path, "resume state")
     if "__meta__" not in flat:
         raise CheckpointError(f"{path} has no '__meta__' entry: not a ptrl_jax resume state")
     meta = json.loads(bytes(flat.pop("__meta__")).decode())
