@@ -263,6 +263,25 @@ def save_resume_state(cfg: ExperimentConfig, run_dir: Path, state: Any, progress
     artifacts.save_state(run_dir / RESUME_STATE, state, meta)
 
 
+# Compiled programs of this process, by what shapes them, for runs without a progress hook (a
+# hook binds its own Progress). A notebook sweep, or a resume in the same process, then skips the
+# trace and compile: tracing the two MJX pipelines alone takes most of a minute on 2 cores.
+_PROGRAMS: dict[tuple, tuple] = {}
+
+
+def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array, budget: np.int32):
+    """(program, jitted init, compiled advance) for ``cfg``."""
+    cache_key = (cfg.source, cfg.target, cfg.network, cfg.freeze_presets, cfg.seeds)
+    if not progress.show and cache_key in _PROGRAMS:
+        return _PROGRAMS[cache_key]
+    program = make_program(cfg, progress.hook)
+    init = jax.jit(program.init)
+    advance = jax.jit(program.advance).lower(jax.eval_shape(init, key), budget).compile()
+    if not progress.show:
+        _PROGRAMS[cache_key] = (program, init, advance)
+    return program, init, advance
+
+
 def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool | None = None,
         resume_from: Path | None = None) -> dict:
     """Compile and run the PTRL program for ``cfg``; write the run folder. Returns paths and
@@ -274,18 +293,16 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     show = cfg.progress if show_progress is None else show_progress
     progress = Progress(cfg, show)
     run_dir = resume_from or run_dir or new_run_dir(cfg)
-    program = make_program(cfg, progress.hook)
     key = jax.random.PRNGKey(cfg.seed)
     total = cfg.source.ppo.num_iterations + cfg.target.ppo.num_iterations
     budget = np.int32(cfg.checkpoint_every or total)
     t = time.monotonic()
-    init = jax.jit(program.init)
+    program, init, advance = _compiled_program(cfg, progress, key, budget)
     if resume_from is not None:
         state, meta = artifacts.load_state(run_dir / RESUME_STATE, jax.eval_shape(init, key))
         progress.restore(meta)
     else:
         state = init(key)
-    advance = jax.jit(program.advance).lower(state, budget).compile()
     compile_s = time.monotonic() - t
     if resume_from is None:
         artifacts.write_config(run_dir / "config.yaml", to_dict(cfg))
