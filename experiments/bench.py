@@ -1,7 +1,9 @@
 """Throughput benchmark (not a test): ``python experiments/bench.py [envs=1024] [iterations=5]``.
 
 Prints, for Go2 at ``envs`` parallel environments, measured side by side in one process:
-  - raw vmapped env steps/s (zero actions, no learning; a scan of the env step),
+  - raw vmapped env steps/s (zero actions, no learning; a scan of the env step), and the same
+    with random actions,
+  - the rollout (env + actor + sampling) and the actor's share of it,
   - training-loop env steps/s with rsl_rl's PPO schedule (24 steps/env, 5 epochs, 4 minibatches),
   - their ratio,
   - the same training loop with the progress callback, and its cost,
@@ -59,6 +61,16 @@ def main(argv):
     _, raw_s = timed(raw, states)
     raw_sps = n * ppo.unroll_length * iters / raw_s
 
+    # Zero actions flatter "raw": XLA folds the constant into the PD law and the legs barely move.
+    @jax.jit
+    def raw_random(s, key):
+        def f(c, k):
+            return jax.vmap(env.step)(c, 0.5 * jax.random.normal(k, (n, env.action_size))), None
+        return jax.lax.scan(f, s, jax.random.split(key, ppo.unroll_length * iters))[0]
+
+    _, raw_random_s = timed(raw_random, states, jax.random.PRNGKey(4))
+    raw_random_sps = n * ppo.unroll_length * iters / raw_random_s
+
     def train_sps(progress):
         trainer = make_train(env, ppo, net, progress)
         params = trainer.init_params(jax.random.PRNGKey(1))
@@ -83,6 +95,15 @@ def main(argv):
     _, rollout_s = timed(rollout, states, jax.random.PRNGKey(3))
     rollout_sps = n * ppo.unroll_length * iters / rollout_s
 
+    @jax.jit
+    def actor_only(obs, key):  # the rollout's policy work without the env
+        def f(c, k):
+            out = policy_apply(params, {"state": c}, net)
+            return c + 1e-3 * jnp.tanh(distributions.sample(k, out.mean, out.std)).sum(-1, keepdims=True), None
+        return jax.lax.scan(f, obs, jax.random.split(key, ppo.unroll_length * iters))[0]
+
+    _, actor_s = timed(actor_only, states.obs["state"], jax.random.PRNGKey(5))
+
     train = train_sps(None)
     calls = []
     with_progress = train_sps(lambda d: calls.append(time.monotonic()))
@@ -97,7 +118,9 @@ def main(argv):
     print(f"robot {robot}, {n} envs, {iters} iterations of {ppo.unroll_length} steps/env, "
           f"{ppo.num_epochs} epochs x {ppo.num_minibatches} minibatches")
     print(f"raw env steps/s:              {raw_sps:10,.0f}")
+    print(f"raw env steps/s, random actions:{raw_random_sps:8,.0f}")
     print(f"rollout (env + policy) steps/s:{rollout_sps:9,.0f}")
+    print(f"actor forward + sampling alone: {100 * actor_s / rollout_s:7.0f} % of the rollout time")
     print(f"training env steps/s:         {train:10,.0f}")
     # What the PPO update costs: per sample and epoch, forward + backward of both MLPs is about
     # 3 x 2 x (multiply-adds of one forward pass) FLOPs.
