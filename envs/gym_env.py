@@ -31,7 +31,10 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 from gymnasium import spaces  # noqa: E402
 
-GYM_IDS = {"go2": "ptrl/Go2-v0", "xbot_l": "ptrl/XBotL-v0"}
+GYM_IDS = {
+    "go2": "ptrl/Go2-v0", "a1": "ptrl/A1-v0", "anymal_b": "ptrl/ANYmalB-v0", "anymal_c": "ptrl/ANYmalC-v0",
+    "xbot_l": "ptrl/XBotL-v0",
+}
 """Registered Gymnasium ids per robot (``ptrl/<Name>-v0``)."""
 
 

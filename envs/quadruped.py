@@ -1,4 +1,4 @@
-"""The quadruped family: Go2 today; A1 and ANYmal B/C plug in with a config each.
+"""The quadruped family: Go2, A1, ANYmal B and ANYmal C, one config each.
 
 Observation (paper Table I, 45 dims), in legged_gym's scales:
     base angular velocity * 0.25 (3), projected gravity (3), joint positions relative to the
@@ -13,6 +13,7 @@ has no trunk collision geometry; see ``LocomotionConfig``.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import jax
@@ -85,6 +86,45 @@ GO2_CONFIG = QuadrupedConfig(
     base_height_target=0.25,
     commands=CommandConfig(lin_vel_x=(-1.0, 1.0), lin_vel_y=(-1.0, 1.0), yaw_rate=(-1.0, 1.0)),
 )
+
+A1_CONFIG = QuadrupedConfig(
+    asset="a1.xml",
+    # Stands and holds its pose at a 10 ms step (MuJoCo C, lowest base height 76 % of standing
+    # over 2 s), so it shares Go2's 10 ms x 2 at half of legged_gym's physics cost.
+    sim_dt=0.01,
+    decimation=2,
+    kp=(20.0,),  # legged_gym a1_config
+    kd=(0.5,),
+    action_scale=0.25,
+    termination_height=0.15,
+    foot_radius=0.02,
+    base_height_target=0.25,
+    commands=GO2_CONFIG.commands,
+)
+
+# ANYmal B and C: legged_gym's kp 80 / kd 2 and action scale 0.5, with a plain PD law (legged_gym
+# replaces it by the ANYdrive actuator network by default; that network is not modelled). A 10 ms
+# step is unstable for these heavier legs under Kd 2 (B sank to 55 % of its height, C was thrown
+# up, MuJoCo C), so they keep legged_gym's 5 ms x 4 = 50 Hz: twice Go2's physics cost per step.
+# Rewards: Table II's terms with legged_gym's base weights, since Go2's torque weight (-2e-4)
+# and joint-limit weight (-10) are unitree_rl_gym's Go2 tuning for 23-45 N m motors.
+_ANYMAL_REWARDS = QuadrupedRewards(torques=-1e-5, dof_pos_limits=0.0)
+
+ANYMAL_B_CONFIG = QuadrupedConfig(
+    asset="anymal_b.xml",
+    sim_dt=0.005,
+    decimation=4,
+    kp=(80.0,),
+    kd=(2.0,),
+    action_scale=0.5,
+    termination_height=0.25,
+    foot_radius=0.031,
+    base_height_target=0.5,
+    rewards=_ANYMAL_REWARDS,
+    commands=GO2_CONFIG.commands,
+)
+
+ANYMAL_C_CONFIG = dataclasses.replace(ANYMAL_B_CONFIG, asset="anymal_c.xml", foot_radius=0.03)
 
 
 class QuadrupedEnv(LeggedEnv):

@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 from envs.base import LeggedEnv, LocomotionConfig
 from envs.biped import XBOT_L_CONFIG, BipedEnv
-from envs.quadruped import GO2_CONFIG, QuadrupedEnv
+from envs.quadruped import A1_CONFIG, ANYMAL_B_CONFIG, ANYMAL_C_CONFIG, GO2_CONFIG, QuadrupedEnv
 
 
 class RobotEntry(NamedTuple):
@@ -18,6 +18,9 @@ class RobotEntry(NamedTuple):
 
 ROBOTS: dict[str, RobotEntry] = {
     "go2": RobotEntry(QuadrupedEnv, GO2_CONFIG, "Unitree Go2 quadruped, 12 DOF"),
+    "a1": RobotEntry(QuadrupedEnv, A1_CONFIG, "Unitree A1 quadruped, 12 DOF"),
+    "anymal_b": RobotEntry(QuadrupedEnv, ANYMAL_B_CONFIG, "ANYbotics ANYmal B quadruped, 12 DOF"),
+    "anymal_c": RobotEntry(QuadrupedEnv, ANYMAL_C_CONFIG, "ANYbotics ANYmal C quadruped, 12 DOF"),
     "xbot_l": RobotEntry(BipedEnv, XBOT_L_CONFIG, "RobotEra XBot-L humanoid legs, 12 DOF"),
 }
 

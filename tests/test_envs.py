@@ -1,5 +1,5 @@
-"""Both robots reset and step under jit without NaN, with the stated sizes; auto-reset and
-truncation bookkeeping behave."""
+"""Every robot resets and steps under jit without NaN, with the stated sizes, and holds its
+default pose; auto-reset and truncation bookkeeping behave."""
 
 import dataclasses
 
@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import envs
+from envs.quadruped import QuadrupedEnv
 
 
 def rollout(env, n_envs=8, steps=10, seed=0, action_scale=0.3):
@@ -24,21 +25,64 @@ def rollout(env, n_envs=8, steps=10, seed=0, action_scale=0.3):
     return states
 
 
-@pytest.mark.parametrize("robot,obs,priv,act", [("go2", 45, 53, 12), ("xbot_l", 47 * 15, 67, 12)])
-class TestEnvContract:
-    def test_sizes_and_finite(self, robot, obs, priv, act):
-        env = envs.make(robot)
-        states = rollout(env)
-        assert env.action_size == act
-        for s in states:
-            assert s.obs["state"].shape == (8, obs)
-            assert s.obs["privileged_state"].shape == (8, priv)
-            for leaf in jax.tree.leaves((s.obs, s.reward, s.metrics)):
-                assert np.all(np.isfinite(np.asarray(leaf)))
-        # Every reward term is logged, and the state type is stable across steps (no recompiles).
-        assert set(states[-1].metrics) == {f"reward/{k}" for k in dataclasses.asdict(env.config.rewards)}
-        assert jax.tree.map(lambda a, b: (a.shape, a.dtype, a.weak_type) == (b.shape, b.dtype, b.weak_type),
-                            states[0], states[-1]) == jax.tree.map(lambda a: True, states[0])
+def expected_sizes(env) -> tuple[int, int]:
+    """(actor obs, critic obs) sizes as each family's docstring states them, from the joint count."""
+    n = env.action_size
+    if isinstance(env, QuadrupedEnv):  # Table I: 3 + 3 + n + n + 3 + n; critic + 3 + 1 + 4
+        return 9 + 3 * n, 9 + 3 * n + 8
+    frame = 11 + 3 * n  # biped frame: clock 2, command 3, q, qdot, last action, w 3, rpy 3
+    return frame * env.config.frame_stack, frame + 3 + 1 + 2 + 2 + n
+
+
+@pytest.fixture(scope="module", params=envs.robot_names())
+def held_default_pose(request):
+    """Every registered robot: reset 4 envs and apply 2 s of zero actions (the PD law holding the
+    default pose), all under one jit (one compile per robot)."""
+    robot = request.param
+    env = envs.make(robot)
+    steps = int(round(2.0 / env.config.ctrl_dt))
+    zeros = jnp.zeros((4, env.action_size))
+
+    @jax.jit
+    def reset_and_hold(keys):
+        first = jax.vmap(env.reset)(keys)
+
+        def step(state, _):
+            nxt = jax.vmap(env.step)(state, zeros)
+            leaves = jax.tree.leaves((nxt.obs, nxt.reward, nxt.metrics))
+            finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+            return nxt, (nxt.done, nxt.pipeline_state.qpos[:, 2], finite)
+
+        last, trace = jax.lax.scan(step, first, None, length=steps)
+        return first, last, trace
+
+    return robot, env, reset_and_hold(jax.random.split(jax.random.PRNGKey(0), 4))
+
+
+# Physics, not a bug: the bipeds cannot stand on a fixed-target PD law with their reference gains
+# (tests/test_assets.py and assets/README.md: XBot-L's ankle Kp 15 against about -373 N m/rad of
+# gravity stiffness); it tips forward from about 1.5 s. A policy has to balance it.
+PASSIVELY_UNSTABLE = {"xbot_l"}
+
+
+class TestRegistryWalk:
+    def test_sizes_finite_terms_and_stable_types(self, held_default_pose):
+        robot, env, (first, last, (_, _, finite)) = held_default_pose
+        obs, priv = expected_sizes(env)
+        assert first.obs["state"].shape == (4, obs) and first.obs["privileged_state"].shape == (4, priv)
+        assert np.all(np.asarray(finite)), f"{robot}: non-finite obs, reward or metrics"
+        assert set(last.metrics) == {f"reward/{k}" for k in dataclasses.asdict(env.config.rewards)}
+        same_type = jax.tree.map(lambda a, b: (a.shape, a.dtype, a.weak_type) == (b.shape, b.dtype, b.weak_type),
+                                 first, last)
+        assert all(jax.tree.leaves(same_type)), f"{robot}: the state type changed across steps"
+
+    def test_zero_actions_hold_the_default_pose_for_2s(self, held_default_pose):
+        robot, env, (_, _, (done, height, _)) = held_default_pose
+        if robot in PASSIVELY_UNSTABLE:  # strict: a robot that stops falling must leave the set
+            assert np.any(np.asarray(done)), f"{robot} held its pose: take it out of PASSIVELY_UNSTABLE"
+            pytest.xfail(f"{robot} is passively unstable under its reference PD gains (see PASSIVELY_UNSTABLE)")
+        assert not np.any(np.asarray(done)), f"{robot} fell within 2 s of holding its default pose"
+        assert float(np.min(height)) > env.config.termination_height
 
 
 class TestGo2Observation:
