@@ -1,4 +1,6 @@
-"""Throughput benchmark (not a test): ``python experiments/bench.py [envs=1024] [iterations=5]``.
+"""Throughput benchmark (not a test): ``python experiments/bench.py [envs=1024] [iterations=3] [robot=go2|all]``.
+
+``robot=all`` prints, per registered robot, compile time and raw env steps/s only.
 
 Prints, for Go2 at ``envs`` parallel environments, measured side by side in one process:
   - raw vmapped env steps/s (zero actions, no learning; a scan of the env step), and the same
@@ -40,11 +42,39 @@ def timed(fn, *args, repeats=1):
     return out, (time.perf_counter() - t) / repeats
 
 
+def raw_env_table(n: int, steps: int) -> None:
+    """``robot=all``: per registered robot, compile time and raw vmapped env steps/s (random
+    actions, N(0, 0.5)) of a scan of ``steps`` env steps at ``n`` envs."""
+    print(f"{'robot':10} {'physics':>12} {'compile s':>10} {'env steps/s':>12} {'physics steps/s':>16}")
+    for robot in envs.robot_names():
+        env = envs.make(robot)
+        t = time.perf_counter()
+        states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), n))
+
+        def scan(s, key):
+            def f(c, k):
+                return jax.vmap(env.step)(c, 0.5 * jax.random.normal(k, (n, env.action_size))), None
+            return jax.lax.scan(f, s, jax.random.split(key, steps))[0]
+
+        compiled = jax.jit(scan).lower(states, jax.random.PRNGKey(1)).compile()
+        compile_s = time.perf_counter() - t
+        _, secs = timed(compiled, states, jax.random.PRNGKey(1))
+        sps = n * steps / secs
+        c = env.config
+        print(f"{robot:10} {f'{c.sim_dt * 1e3:g} ms x {c.decimation}':>12} {compile_s:10.1f} {sps:12,.0f} "
+              f"{sps * c.decimation:16,.0f}", flush=True)
+
+
 def main(argv):
     args = parse_cli(argv)
     n = int(args.get("envs", 1024))
     iters = int(args.get("iterations", 3))
     robot = args.get("robot", "go2")
+    if robot == "all":
+        print(f"machine: {platform.processor() or platform.machine()}, {jax.device_count()} "
+              f"{jax.devices()[0].platform} device(s), jax {jax.__version__}; {n} envs, {24 * iters} steps")
+        raw_env_table(n, 24 * iters)
+        return
     env = envs.make(robot)
     ppo = PPOConfig(num_envs=n, num_iterations=iters)  # rsl_rl schedule: 24 x 5 epochs x 4 minibatches
     net = NetworkConfig()
