@@ -10,6 +10,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from mjcf_checks import colliding_pairs, hinge_names, pd_hold
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 
@@ -88,14 +89,6 @@ def _load(name):
     return mujoco.MjModel.from_xml_path(str(ASSETS / name))
 
 
-def _hinge_names(m):
-    return [
-        m.joint(i).name
-        for i in range(m.njnt)
-        if m.jnt_type[i] == mujoco.mjtJoint.mjJNT_HINGE
-    ]
-
-
 def _lowest_foot_point(m, d, feet):
     """World z of the lowest point of the foot geoms (spheres or boxes)."""
     low = np.inf
@@ -119,51 +112,6 @@ def _stand_height(m, feet):
     d.qpos[2] = 2.0  # well above the floor, so nothing touches
     mujoco.mj_forward(m, d)
     return d.qpos[2] - _lowest_foot_point(m, d, feet)
-
-
-def _colliding_pairs(m):
-    """Geom pairs allowed to collide by contype/conaffinity (plus explicit pairs)."""
-    pairs = set()
-    for i in range(m.ngeom):
-        for j in range(i + 1, m.ngeom):
-            if m.geom_bodyid[i] == m.geom_bodyid[j]:
-                continue
-            if (m.geom_contype[i] & m.geom_conaffinity[j]) or (
-                m.geom_contype[j] & m.geom_conaffinity[i]
-            ):
-                pairs.add(frozenset((m.geom(i).name, m.geom(j).name)))
-    for k in range(m.npair):
-        i, j = m.pair_geom1[k], m.pair_geom2[k]
-        pairs.add(frozenset((m.geom(i).name, m.geom(j).name)))
-    return pairs
-
-
-def _pd_hold(m, kp, kd, seconds=2.0):
-    """Hold the home pose with tau = kp (q* - q) - kd qdot, clipped to ctrlrange.
-
-    Returns (finite, min base height / initial height, max projected-gravity z).
-    """
-    d = mujoco.MjData(m)
-    mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
-    mujoco.mj_forward(m, d)
-    q_star = d.qpos[7:].copy()
-    z0 = d.qpos[2]
-    kp = np.broadcast_to(np.asarray(kp, float), q_star.shape)
-    kd = np.broadcast_to(np.asarray(kd, float), q_star.shape)
-    lo, hi = m.actuator_ctrlrange.T
-    base = m.body("base").id
-    min_ratio, max_gz = np.inf, -np.inf
-    for _ in range(int(round(seconds / m.opt.timestep))):
-        tau = kp * (q_star - d.qpos[7:]) - kd * d.qvel[6:]
-        d.ctrl[:] = np.clip(tau, lo, hi)
-        mujoco.mj_step(m, d)
-        if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))):
-            return False, min_ratio, max_gz
-        # gravity direction expressed in the base frame, z component
-        gz = -d.xmat[base].reshape(3, 3)[2, 2]
-        min_ratio = min(min_ratio, d.qpos[2] / z0)
-        max_gz = max(max_gz, gz)
-    return True, min_ratio, max_gz
 
 
 class _Common:
@@ -190,7 +138,7 @@ class _Common:
         free = [i for i in range(model.njnt) if model.jnt_type[i] == mujoco.mjtJoint.mjJNT_FREE]
         assert len(free) == 1 and model.joint(free[0]).name == "root"
         assert model.jnt_bodyid[free[0]] == model.body("base").id
-        assert _hinge_names(model) == self.JOINTS
+        assert hinge_names(model) == self.JOINTS
         assert model.nq == 7 + 12 and model.nv == 6 + 12
         assert np.all(model.jnt_limited[1:] == 1)
         assert np.all(model.dof_frictionloss == 0)
@@ -227,7 +175,7 @@ class _Common:
 
     def test_only_feet_collide(self, model):
         expected = {frozenset(("floor", f)) for f in self.FEET}
-        assert _colliding_pairs(model) == expected
+        assert colliding_pairs(model) == expected
         assert model.geom("floor").type[0] == mujoco.mjtGeom.mjGEOM_PLANE
 
     def test_mjx_put_model(self, model):
@@ -274,8 +222,8 @@ class TestGo2(_Common):
         np.testing.assert_allclose(d.xanchor[model.joint("FR_calf_joint").id] - base, [0.1934, -0.142, -0.213], atol=1e-6)
         np.testing.assert_allclose(d.geom("RL_foot").xpos - base, [-0.1954, 0.142, -0.426], atol=1e-6)
 
-    def test_pd_hold(self, model):
-        finite, min_ratio, max_gz = _pd_hold(model, GO2_KP, GO2_KD)
+    def testpd_hold(self, model):
+        finite, min_ratio, max_gz = pd_hold(model, GO2_KP, GO2_KD)
         assert finite
         assert min_ratio > 0.7
         assert max_gz < -0.9
@@ -338,7 +286,7 @@ class TestXBotL(_Common):
         ),
     )
     def test_pd_hold_humanoid_gym_gains(self, model):
-        finite, min_ratio, max_gz = _pd_hold(model, XBOT_KP, XBOT_KD)
+        finite, min_ratio, max_gz = pd_hold(model, XBOT_KP, XBOT_KD)
         assert finite
         assert min_ratio > 0.7
         assert max_gz < -0.9
@@ -348,7 +296,7 @@ class TestXBotL(_Common):
         # stable (knee/hip pitch sag otherwise tilts the trunk backwards and
         # the ankle springs cannot hold the inverted pendulum).
         kp = [200, 200, 1000, 1000, 400, 400] * 2
-        finite, min_ratio, max_gz = _pd_hold(model, kp, XBOT_KD)
+        finite, min_ratio, max_gz = pd_hold(model, kp, XBOT_KD)
         assert finite
         assert min_ratio > 0.7
         assert max_gz < -0.9

@@ -14,6 +14,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from mjcf_checks import colliding_pairs, pd_hold
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 # The source models, read at test time only to compare numbers (nothing from
@@ -283,54 +284,6 @@ def _stand_height(m, feet, qpos=None):
     return d.qpos[2] - _lowest_foot_point(m, d, feet)
 
 
-def _colliding_pairs(m):
-    """Geom pairs allowed to collide by contype/conaffinity (plus explicit pairs)."""
-    pairs = set()
-    for i in range(m.ngeom):
-        for j in range(i + 1, m.ngeom):
-            if m.geom_bodyid[i] == m.geom_bodyid[j]:
-                continue
-            if (m.geom_contype[i] & m.geom_conaffinity[j]) or (
-                m.geom_contype[j] & m.geom_conaffinity[i]
-            ):
-                pairs.add(frozenset((m.geom(i).name, m.geom(j).name)))
-    for k in range(m.npair):
-        i, j = m.pair_geom1[k], m.pair_geom2[k]
-        pairs.add(frozenset((m.geom(i).name, m.geom(j).name)))
-    return pairs
-
-
-def _pd_hold(m, kp, kd, qpos=None, seconds=2.0):
-    """Hold a pose with tau = kp (q* - q) - kd qdot, clipped to ctrlrange.
-
-    The pose is the home keyframe, or ``qpos`` (then also the PD target).
-    Returns (finite, min base height / initial height, max projected-gravity z).
-    """
-    d = mujoco.MjData(m)
-    mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
-    if qpos is not None:
-        d.qpos[:] = qpos
-    mujoco.mj_forward(m, d)
-    q_star = d.qpos[7:].copy()
-    z0 = d.qpos[2]
-    kp = np.broadcast_to(np.asarray(kp, float), q_star.shape)
-    kd = np.broadcast_to(np.asarray(kd, float), q_star.shape)
-    lo, hi = m.actuator_ctrlrange.T
-    base = m.body("base").id
-    min_ratio, max_gz = np.inf, -np.inf
-    for _ in range(int(round(seconds / m.opt.timestep))):
-        tau = kp * (q_star - d.qpos[7:]) - kd * d.qvel[6:]
-        d.ctrl[:] = np.clip(tau, lo, hi)
-        mujoco.mj_step(m, d)
-        if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))):
-            return False, min_ratio, max_gz
-        # gravity direction expressed in the base frame, z component
-        gz = -d.xmat[base].reshape(3, 3)[2, 2]
-        min_ratio = min(min_ratio, d.qpos[2] / z0)
-        max_gz = max(max_gz, gz)
-    return True, min_ratio, max_gz
-
-
 def _flat_pose(m, robot, joint_offsets, base_pitch=0.0):
     """qpos of home plus joint offsets, base pitched forward, feet touching the floor."""
     qpos = m.key("home").qpos.copy()
@@ -475,7 +428,7 @@ def test_home_keyframe_and_stand_height(robot, model):
 
 def test_only_feet_collide(robot, model):
     expected = {frozenset(("floor", f)) for f in _all_feet(robot)}
-    assert _colliding_pairs(model) == expected
+    assert colliding_pairs(model) == expected
     assert model.geom("floor").type[0] == mujoco.mjtGeom.mjGEOM_PLANE
     # feet are spheres or capsules (MJX plane-box keeps fewer contacts than MuJoCo C)
     for f in _all_feet(robot):
@@ -598,7 +551,7 @@ _PD_XFAIL = {
 )
 def test_pd_hold_reference_gains(name):
     robot = ROBOTS[name]
-    finite, min_ratio, max_gz = _pd_hold(_load(robot), robot.kp, robot.kd)
+    finite, min_ratio, max_gz = pd_hold(_load(robot), robot.kp, robot.kd)
     assert finite
     assert min_ratio > 0.7
     assert max_gz < -0.9
@@ -640,7 +593,7 @@ def test_pd_hold_stable_pose(name):
         assert _lowest_point(m, d, f) == pytest.approx(0.0, abs=1e-3)
     lo, hi, com_x = _support_x(m, d, robot)
     assert lo + 0.02 < com_x < hi - 0.02
-    finite, min_ratio, max_gz = _pd_hold(m, kp, kd, qpos=qpos)
+    finite, min_ratio, max_gz = pd_hold(m, kp, kd, qpos=qpos)
     assert finite
     assert min_ratio > 0.7
     assert max_gz < -0.9

@@ -13,6 +13,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from mjcf_checks import colliding_pairs, hinge_names, pd_hold
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 
@@ -179,10 +180,6 @@ def model(robot):
     return mujoco.MjModel.from_xml_path(str(ASSETS / spec.file))
 
 
-def _hinge_names(m):
-    return [m.joint(i).name for i in range(m.njnt) if m.jnt_type[i] == mujoco.mjtJoint.mjJNT_HINGE]
-
-
 def _data_at(m, qpos_joints=None, base_z=None):
     """MjData after mj_forward: the home keyframe, or qpos0 with the given joint angles
     (level base at x = y = 0 either way), optionally at another base height."""
@@ -206,45 +203,6 @@ def _stand_height(m, qpos_joints=None):
     """Base height with a level base at which the lowest foot just touches the floor."""
     d = _data_at(m, qpos_joints, base_z=2.0)  # well above the floor, nothing touches
     return d.qpos[2] - _lowest_foot_point(m, d)
-
-
-def _colliding_pairs(m):
-    """Geom pairs allowed to collide by contype/conaffinity (plus explicit pairs)."""
-    pairs = set()
-    for i in range(m.ngeom):
-        for j in range(i + 1, m.ngeom):
-            if m.geom_bodyid[i] == m.geom_bodyid[j]:
-                continue
-            if (m.geom_contype[i] & m.geom_conaffinity[j]) or (m.geom_contype[j] & m.geom_conaffinity[i]):
-                pairs.add(frozenset((m.geom(i).name, m.geom(j).name)))
-    for k in range(m.npair):
-        pairs.add(frozenset((m.geom(m.pair_geom1[k]).name, m.geom(m.pair_geom2[k]).name)))
-    return pairs
-
-
-def _pd_hold(m, kp, kd, seconds=2.0):
-    """Hold the home pose with tau = kp (q* - q) - kd qdot, clipped to ctrlrange.
-
-    Returns (finite, min base height / initial height, max projected-gravity z).
-    """
-    d = mujoco.MjData(m)
-    mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
-    mujoco.mj_forward(m, d)
-    q_star = d.qpos[7:].copy()
-    z0 = d.qpos[2]
-    lo, hi = m.actuator_ctrlrange.T
-    base = m.body("base").id
-    min_ratio, max_gz = np.inf, -np.inf
-    for _ in range(int(round(seconds / m.opt.timestep))):
-        tau = kp * (q_star - d.qpos[7:]) - kd * d.qvel[6:]
-        d.ctrl[:] = np.clip(tau, lo, hi)
-        mujoco.mj_step(m, d)
-        if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))):
-            return False, min_ratio, max_gz
-        gz = -d.xmat[base].reshape(3, 3)[2, 2]  # gravity in the base frame, z component
-        min_ratio = min(min_ratio, d.qpos[2] / z0)
-        max_gz = max(max_gz, gz)
-    return True, min_ratio, max_gz
 
 
 # -------------------------------------------------------------------- tests
@@ -285,7 +243,7 @@ def test_joint_structure(model):
     free = [i for i in range(model.njnt) if model.jnt_type[i] == mujoco.mjtJoint.mjJNT_FREE]
     assert len(free) == 1 and model.joint(free[0]).name == "root"
     assert model.jnt_bodyid[free[0]] == model.body("base").id
-    assert _hinge_names(model) == JOINTS
+    assert hinge_names(model) == JOINTS
     assert model.nq == 7 + 12 and model.nv == 6 + 12
     assert np.all(model.jnt_limited[1:] == 1)
     assert np.all(model.dof_frictionloss == 0)
@@ -379,7 +337,7 @@ def test_stand_height(robot, model):
 
 def test_only_feet_collide(model):
     expected = {frozenset(("floor", f)) for f in FEET}
-    assert _colliding_pairs(model) == expected
+    assert colliding_pairs(model) == expected
     assert model.npair == 0
     assert model.geom("floor").type[0] == mujoco.mjtGeom.mjGEOM_PLANE
     assert model.geom("floor").contype[0] == 1 and model.geom("floor").conaffinity[0] == 0
@@ -390,9 +348,9 @@ def test_only_feet_collide(model):
     assert model.nlight == 1
 
 
-def test_pd_hold(robot, model):
+def testpd_hold(robot, model):
     _, spec = robot
-    finite, min_ratio, max_gz = _pd_hold(model, spec.kp, spec.kd)
+    finite, min_ratio, max_gz = pd_hold(model, spec.kp, spec.kd)
     assert finite
     assert min_ratio > 0.7
     assert max_gz < -0.9
