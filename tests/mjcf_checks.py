@@ -50,3 +50,22 @@ def pd_hold(m: mujoco.MjModel, kp, kd, qpos=None, seconds: float = 2.0) -> tuple
         min_ratio = min(min_ratio, d.qpos[2] / z0)
         max_gz = max(max_gz, gz)
     return True, min_ratio, max_gz
+
+
+def check_motors(m: mujoco.MjModel, torque) -> None:
+    """Plain torque motors: gear 1, unit gain, no bias, ctrlrange +- the torque limits."""
+    np.testing.assert_allclose(m.actuator_gear[:, 0], 1.0)
+    np.testing.assert_allclose(m.actuator_gainprm[:, 0], 1.0)
+    assert np.all(m.actuator_biastype == mujoco.mjtBias.mjBIAS_NONE)
+    assert np.all(m.actuator_ctrllimited == 1)
+    lim = np.asarray(torque, float)
+    np.testing.assert_allclose(m.actuator_ctrlrange, np.stack([-lim, lim], 1))
+
+
+def check_shared_options(m: mujoco.MjModel) -> None:
+    """The <option> line every asset shares (the env overrides step and solver at load)."""
+    assert m.opt.timestep == 0.005
+    assert m.opt.iterations == 2 and m.opt.ls_iterations == 6
+    assert m.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
+    assert m.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
+    assert m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_EULERDAMP

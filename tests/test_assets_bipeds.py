@@ -14,7 +14,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
-from mjcf_checks import colliding_pairs, pd_hold
+from mjcf_checks import check_motors, check_shared_options, colliding_pairs, pd_hold
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 # The source models, read at test time only to compare numbers (nothing from
@@ -370,20 +370,11 @@ def test_actuators(robot, model):
     for i, jname in enumerate(robot.joints):
         assert model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT
         assert model.actuator_trnid[i, 0] == model.joint(jname).id
-    np.testing.assert_allclose(model.actuator_gear[:, 0], 1.0)
-    np.testing.assert_allclose(model.actuator_gainprm[:, 0], 1.0)
-    assert np.all(model.actuator_biastype == mujoco.mjtBias.mjBIAS_NONE)
-    assert np.all(model.actuator_ctrllimited == 1)
-    lim = np.asarray(robot.torque, float)
-    np.testing.assert_allclose(model.actuator_ctrlrange, np.stack([-lim, lim], 1))
+    check_motors(model, robot.torque)
 
 
 def test_options(model):
-    assert model.opt.timestep == pytest.approx(0.005)
-    assert model.opt.iterations == 2 and model.opt.ls_iterations == 6
-    assert model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
-    assert model.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
-    assert model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_EULERDAMP
+    check_shared_options(model)
     assert model.nlight == 1
 
 
