@@ -1,7 +1,7 @@
-"""The biped family, after humanoid-gym's XBot-L setup: XBot-L today; MIT Humanoid, Cassie and
-TRON1 plug in with a config each.
+"""The biped family, after humanoid-gym's XBot-L setup: XBot-L, MIT Humanoid, Cassie and TRON1,
+one config each.
 
-Observation frame (47 for 12 joints), humanoid-gym's order and scales:
+Observation frame (11 + 3n for n joints: 47 for 12), humanoid-gym's order and scales:
     sin and cos of the gait phase (2), command * (2, 2, 1) (3), joint positions relative to the
     default pose (n), joint velocities * 0.05 (n), last action (n), base angular velocity (3),
     base roll-pitch-yaw (3).
@@ -28,6 +28,7 @@ import jax.numpy as jnp
 from brax import math
 
 from envs.base import CommandConfig, LeggedEnv, LocomotionConfig
+from envs.randomization import RandomizationConfig
 
 
 @dataclass(frozen=True)
@@ -98,12 +99,16 @@ class BipedConfig(LocomotionConfig):
     """Lower bound of the feet_distance reward band, m."""
     max_feet_distance: float = 0.5
     """Upper bound of the feet_distance reward band, m."""
-    swing_joints: tuple[int, int, int, int, int, int] = (2, 3, 4, 8, 9, 10)
-    """Indices of left hip pitch, knee, ankle pitch, then right: the reference gait's joints."""
-    swing_signs: tuple[float, float, float, float, float, float] = (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0)
-    """Sign of flexion on each swing joint (mirrored axes: left flexes negative)."""
+    swing_joints: tuple[int, ...] = (2, 3, 4, 8, 9, 10)
+    """The reference gait's joints, left leg then right, the same count per leg (XBot-L: hip
+    pitch, knee, ankle pitch)."""
+    swing_signs: tuple[float, ...] = (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0)
+    """Sign of flexion on each swing joint (XBot-L's axes are mirrored: left flexes negative)."""
+    swing_gains: tuple[float, ...] = (1.0, 2.0, 1.0, 1.0, 2.0, 1.0)
+    """Swing amplitude per joint in units of target_joint_pos_scale (humanoid-gym: hip 1, knee 2,
+    ankle 1, which keeps the sole parallel to the ground)."""
     hip_yaw_roll_joints: tuple[int, ...] = (0, 1, 6, 7)
-    """Hip roll and yaw joints, held near default by default_joint_pos."""
+    """Hip roll and yaw joints, left then right, held near default by default_joint_pos."""
     foot_sites: tuple[str, str] = ("left_foot_site", "right_foot_site")
     """Sites at the sole centres."""
     knee_bodies: tuple[str, str] = ("left_knee_link", "right_knee_link")
@@ -111,6 +116,11 @@ class BipedConfig(LocomotionConfig):
     rewards: BipedRewards = field(default_factory=BipedRewards)
     """Reward weights."""
 
+
+# humanoid-gym XBotLCfg's command ranges, used for every biped (the checks are at vx 0 and 0.3).
+BIPED_COMMANDS = CommandConfig(
+    lin_vel_x=(-0.3, 0.6), lin_vel_y=(-0.3, 0.3), yaw_rate=(-0.3, 0.3), resample_time_s=8.0
+)
 
 XBOT_L_CONFIG = BipedConfig(
     asset="xbot_l.xml",
@@ -124,9 +134,98 @@ XBOT_L_CONFIG = BipedConfig(
     max_tilt_rad=0.8,
     init_joint_noise=0.05,
     init_base_vel_noise=0.1,
-    commands=CommandConfig(
-        lin_vel_x=(-0.3, 0.6), lin_vel_y=(-0.3, 0.3), yaw_rate=(-0.3, 0.3), resample_time_s=8.0
-    ),
+    commands=BIPED_COMMANDS,
+    # humanoid-gym XBotLCfg.domain_rand as recalled (not in FACTS.md): off until an experiment
+    # enables it.
+    randomization=RandomizationConfig(friction=(0.1, 2.0), added_base_mass=(-5.0, 5.0),
+                                      push_interval_s=4.0, max_push_vel=0.2),
+)
+
+
+# MIT Humanoid, after pbrs-humanoid's humanoid_config.py (FACTS §8): kp 30 / kd 5 on all ten
+# joints, action_scale 1.0, 100 Hz, base_height_target 0.62 (a crouch below the 0.69 stand).
+# Its hips have yaw, abad, pitch; the sagittal chain is hip pitch, knee, ankle on +y axes on both
+# legs, so flexion signs are not mirrored (assets/README.md, joint table).
+MIT_HUMANOID_CONFIG = BipedConfig(
+    asset="mit_humanoid.xml",
+    sim_dt=0.005,
+    decimation=2,  # 100 Hz, as pbrs-humanoid
+    episode_length_s=24.0,
+    kp=(30.0,),
+    kd=(5.0,),
+    action_scale=1.0,
+    termination_height=0.4,
+    max_tilt_rad=0.8,
+    init_joint_noise=0.05,
+    init_base_vel_noise=0.1,
+    base_height_target=0.62,
+    # Shorter legs than XBot-L: 0.3 rad of hip swing lifts the sole 3.8 cm (0.17 gives 1.6 cm).
+    target_joint_pos_scale=0.3,
+    target_feet_height=0.04,
+    min_feet_distance=0.12,  # feet 0.158 m apart at home
+    max_feet_distance=0.35,
+    swing_joints=(2, 3, 4, 7, 8, 9),
+    swing_signs=(-1.0, 1.0, -1.0, -1.0, 1.0, -1.0),
+    hip_yaw_roll_joints=(0, 1, 5, 6),
+    commands=BIPED_COMMANDS,
+)
+
+# Cassie as legged_gym's 12-DOF open tree (cassie_config.py, FACTS §6(b)): 50 Hz, action_scale
+# 0.5. The reference gait swings hip pitch and knee by equal angles, which keeps the foot level
+# on Cassie's geometry (tarsus and toe keep their defaults; the tarsus is passive on the real
+# robot). Every sagittal axis is -y on both legs, so the hip flexes + and the knee -. The 0.4 rad
+# amplitude lifts the foot 4.4 cm.
+CASSIE_CONFIG = BipedConfig(
+    asset="cassie.xml",
+    sim_dt=0.005,
+    decimation=4,  # 50 Hz, as legged_gym
+    episode_length_s=24.0,
+    kp=(100.0, 100.0, 200.0, 200.0, 200.0, 40.0) * 2,
+    kd=(3.0, 3.0, 6.0, 6.0, 6.0, 1.0) * 2,
+    action_scale=0.5,
+    termination_height=0.5,
+    max_tilt_rad=0.8,
+    init_joint_noise=0.05,
+    init_base_vel_noise=0.1,
+    base_height_target=0.85,  # the 0.855 m stand
+    target_joint_pos_scale=0.4,
+    target_feet_height=0.045,
+    min_feet_distance=0.2,  # feet 0.261 m apart at home
+    max_feet_distance=0.45,
+    swing_joints=(2, 3, 8, 9),
+    swing_signs=(1.0, -1.0, 1.0, -1.0),
+    swing_gains=(1.0, 1.0, 1.0, 1.0),
+    hip_yaw_roll_joints=(0, 1, 6, 7),
+    commands=BIPED_COMMANDS,
+)
+
+# TRON1 point foot (PF_TRON1A), after tron1-rl-isaacgym pointfoot_flat_config.py (FACTS §9):
+# kp 42 / kd 2.5, action_scale 0.25, 50 Hz, feet_height_target 0.10, min_feet_distance 0.115,
+# base_height_target 0.68. No ankle: the gait swings hip and knee only. The zero pose has the
+# knee bent 60 degrees, and on the left leg + on both hip and knee lifts the foot (right mirrored);
+# checked by forward kinematics: 0.17 rad gives 5.9 cm of lift, 0.25 rad about 0.1 m.
+TRON1_CONFIG = BipedConfig(
+    asset="tron1.xml",
+    sim_dt=0.005,
+    decimation=4,  # 50 Hz, as the source
+    episode_length_s=24.0,
+    kp=(42.0,),
+    kd=(2.5,),
+    action_scale=0.25,
+    termination_height=0.45,
+    max_tilt_rad=0.8,
+    init_joint_noise=0.05,
+    init_base_vel_noise=0.1,
+    target_joint_pos_scale=0.25,
+    target_feet_height=0.10,
+    base_height_target=0.68,
+    min_feet_distance=0.115,  # feet 0.21 m apart at home
+    max_feet_distance=0.4,
+    swing_joints=(1, 2, 4, 5),
+    swing_signs=(1.0, 1.0, -1.0, -1.0),
+    swing_gains=(1.0, 2.0, 1.0, 2.0),
+    hip_yaw_roll_joints=(0, 3),  # abad only: TRON1 has no hip yaw
+    commands=BIPED_COMMANDS,
 )
 
 
@@ -136,13 +235,25 @@ class BipedEnv(LeggedEnv):
     def __init__(self, config: BipedConfig, **kwargs):
         super().__init__(config, **kwargs)
         m = self.mj_model
-        if self.num_joints != 12 and config.swing_joints == BipedConfig.swing_joints:
-            raise ValueError(f"{config.asset}: {self.num_joints} joints; set swing_joints for this robot")
-        self._foot_sites = jnp.array([m.site(n).id for n in config.foot_sites])
-        self._knee_bodies = jnp.array([m.body(n).id for n in config.knee_bodies])
+        n = self.num_joints
+        swing = (config.swing_joints, config.swing_signs, config.swing_gains)
+        if len({len(t) for t in swing}) != 1 or len(config.swing_joints) % 2:
+            raise ValueError(
+                f"{config.asset}: swing_joints, swing_signs and swing_gains need one entry per joint, "
+                f"the same count per leg; got {tuple(len(t) for t in swing)}")
+        for name in ("swing_joints", "hip_yaw_roll_joints"):
+            idx = getattr(config, name)
+            if any(not 0 <= i < n for i in idx) or len(idx) % 2:
+                raise ValueError(f"{config.asset}: {name}={idx} must be joint indices in [0, {n}), "
+                                 f"left leg then right")
+        self._foot_sites = jnp.array([m.site(name).id for name in config.foot_sites])
+        self._knee_bodies = jnp.array([m.body(name).id for name in config.knee_bodies])
         self._swing_idx = jnp.array(config.swing_joints)
         self._swing_sign = jnp.array(config.swing_signs)
-        self._swing_gain = jnp.array([1.0, 2.0, 1.0, 1.0, 2.0, 1.0])
+        self._swing_gain = jnp.array(config.swing_gains)
+        half = len(config.hip_yaw_roll_joints) // 2
+        self._hip_left = jnp.array(config.hip_yaw_roll_joints[:half])
+        self._hip_right = jnp.array(config.hip_yaw_roll_joints[half:])
 
     # ----- gait -----------------------------------------------------------------------------------
     def phase(self, info) -> jax.Array:
@@ -152,7 +263,8 @@ class BipedEnv(LeggedEnv):
         """(reference joint positions, stance mask [left, right])."""
         s = jnp.sin(2.0 * jnp.pi * self.phase(info))
         left_swing, right_swing = jnp.maximum(-s, 0.0), jnp.maximum(s, 0.0)
-        swing = jnp.array([left_swing] * 3 + [right_swing] * 3)
+        per_leg = len(self.config.swing_joints) // 2
+        swing = jnp.concatenate([jnp.full(per_leg, left_swing), jnp.full(per_leg, right_swing)])
         amplitude = self.config.target_joint_pos_scale * self._swing_gain * self._swing_sign * swing
         amplitude = jnp.where(jnp.abs(s) < 0.1, 0.0, amplitude)
         ref = self._default_joints.at[self._swing_idx].add(amplitude)
@@ -252,8 +364,8 @@ class BipedEnv(LeggedEnv):
         low_speed = jnp.where(v[0] * cmd[0] < 0.0, -2.0, low_speed)
         low_speed = jnp.where(command_x > 0.1, low_speed, 0.0)
 
-        yaw_roll = jnp.linalg.norm(q[jnp.array(cfg.hip_yaw_roll_joints[:2])] - self._default_joints[jnp.array(cfg.hip_yaw_roll_joints[:2])])
-        yaw_roll += jnp.linalg.norm(q[jnp.array(cfg.hip_yaw_roll_joints[2:])] - self._default_joints[jnp.array(cfg.hip_yaw_roll_joints[2:])])
+        q_err = q - self._default_joints
+        yaw_roll = jnp.linalg.norm(q_err[self._hip_left]) + jnp.linalg.norm(q_err[self._hip_right])
         yaw_roll = jnp.clip(yaw_roll - 0.1, 0.0, 50.0)
 
         euler = math.quat_to_euler(self.base_quat(data))

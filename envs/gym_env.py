@@ -33,7 +33,8 @@ from gymnasium import spaces  # noqa: E402
 
 GYM_IDS = {
     "go2": "ptrl/Go2-v0", "a1": "ptrl/A1-v0", "anymal_b": "ptrl/ANYmalB-v0", "anymal_c": "ptrl/ANYmalC-v0",
-    "xbot_l": "ptrl/XBotL-v0",
+    "xbot_l": "ptrl/XBotL-v0", "mit_humanoid": "ptrl/MITHumanoid-v0", "cassie": "ptrl/Cassie-v0",
+    "tron1": "ptrl/TRON1-v0",
 }
 """Registered Gymnasium ids per robot (``ptrl/<Name>-v0``)."""
 

@@ -6,7 +6,7 @@ import difflib
 from typing import NamedTuple
 
 from envs.base import LeggedEnv, LocomotionConfig
-from envs.biped import XBOT_L_CONFIG, BipedEnv
+from envs.biped import CASSIE_CONFIG, MIT_HUMANOID_CONFIG, TRON1_CONFIG, XBOT_L_CONFIG, BipedEnv
 from envs.quadruped import A1_CONFIG, ANYMAL_B_CONFIG, ANYMAL_C_CONFIG, GO2_CONFIG, QuadrupedEnv
 
 
@@ -22,6 +22,9 @@ ROBOTS: dict[str, RobotEntry] = {
     "anymal_b": RobotEntry(QuadrupedEnv, ANYMAL_B_CONFIG, "ANYbotics ANYmal B quadruped, 12 DOF"),
     "anymal_c": RobotEntry(QuadrupedEnv, ANYMAL_C_CONFIG, "ANYbotics ANYmal C quadruped, 12 DOF"),
     "xbot_l": RobotEntry(BipedEnv, XBOT_L_CONFIG, "RobotEra XBot-L humanoid legs, 12 DOF"),
+    "mit_humanoid": RobotEntry(BipedEnv, MIT_HUMANOID_CONFIG, "MIT Humanoid legs, 10 DOF, arms fixed"),
+    "cassie": RobotEntry(BipedEnv, CASSIE_CONFIG, "Agility Cassie biped, 12-DOF open tree"),
+    "tron1": RobotEntry(BipedEnv, TRON1_CONFIG, "LimX TRON1 point-foot biped, 6 DOF"),
 }
 
 
