@@ -35,6 +35,9 @@ from brax import math
 from brax.envs.base import PipelineEnv, State
 from brax.io import mjcf
 
+from envs import randomization
+from envs.randomization import RandomizationConfig
+
 ASSETS_DIR = Path(__file__).resolve().parents[1] / "assets"
 
 
@@ -105,6 +108,8 @@ class LocomotionConfig:
     """Clip the total reward at zero (legged_gym, humanoid-gym): avoids learning to fall early."""
     commands: CommandConfig = field(default_factory=CommandConfig)
     """Velocity command sampling."""
+    randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
+    """Domain randomization (``envs.randomization``); off unless enabled."""
 
     def __post_init__(self):
         if self.sim_dt <= 0 or self.decimation < 1:
@@ -188,6 +193,7 @@ class LeggedEnv(PipelineEnv):
         lo, hi = mj_model.jnt_range[1:, 0], mj_model.jnt_range[1:, 1]
         self._joint_lower = jnp.asarray(lo, jnp.float32)
         self._joint_upper = jnp.asarray(hi, jnp.float32)
+        self._base_body = int(mj_model.jnt_bodyid[0])  # the free joint's body
         self._reward_weights: Mapping[str, float] = dataclasses.asdict(config.rewards)  # type: ignore[attr-defined]
 
     # ----- to be provided by a family -------------------------------------------------------
@@ -262,6 +268,9 @@ class LeggedEnv(PipelineEnv):
             "termination": jnp.zeros(()),
             "nonfinite": jnp.zeros(()),
         }
+        if self.config.randomization.enabled:
+            k_family, k_draw = jax.random.split(k_family)
+            info["randomization"] = randomization.sample(self.config.randomization, k_draw)
         info.update(self._init_family_info(data, k_family))
         return info
 
@@ -285,21 +294,38 @@ class LeggedEnv(PipelineEnv):
         a = jnp.clip(action, -self.config.clip_actions, self.config.clip_actions)
         return self._default_joints + self.config.action_scale * a
 
-    def pd_torque(self, data, target: jax.Array) -> jax.Array:
-        """Stiffness half of the PD law; the damping half is implicit joint damping."""
-        tau = self._kp * (target - self.joint_pos(data))
-        return jnp.clip(tau, -self._torque_limit, self._torque_limit)
+    def pd_torque(self, data, target: jax.Array, kp_scale=1.0, motor_strength=1.0) -> jax.Array:
+        """Stiffness half of the PD law; the damping half is implicit joint damping. The scales
+        are domain randomization's (1 without it)."""
+        tau = kp_scale * self._kp * (target - self.joint_pos(data))
+        return motor_strength * jnp.clip(tau, -self._torque_limit, self._torque_limit)
 
-    def physics_step(self, data, action: jax.Array):
+    def physics_step(self, data, action: jax.Array, info: dict | None = None):
         target = self.joint_targets(action)
+        sys, kp_scale, strength = self.sys, 1.0, 1.0
+        if self.config.randomization.enabled:
+            draw = info["randomization"]
+            sys = randomization.apply(self.sys, draw, self._base_body)
+            kp_scale, strength = draw["kp_scale"], draw["motor_strength"]
+            data = self._push(data, info)
 
         def substep(d, _):
             # mjx.step on plain mjx.Data: Brax's pipeline wrapper would also rebuild its own
             # link transforms and contacts every substep, which nothing here reads.
-            return mjx.step(self.sys, d.replace(ctrl=self.pd_torque(d, target))), None
+            tau = self.pd_torque(d, target, kp_scale, strength)
+            return mjx.step(sys, d.replace(ctrl=tau)), None
 
         data, _ = jax.lax.scan(substep, data, None, length=self.config.decimation)
         return data
+
+    def _push(self, data, info: dict):
+        """Domain randomization's push: every push_interval_s of an episode, a random change of
+        the base's planar velocity (world frame)."""
+        cfg = self.config.randomization
+        every = max(int(round(cfg.push_interval_s / self.config.ctrl_dt)), 1)
+        due = (info["step"] > 0) & (info["step"] % every == 0)
+        kick = jax.random.uniform(jax.random.fold_in(info["rng"], 1), (2,), minval=-1.0, maxval=1.0)
+        return data.replace(qvel=data.qvel.at[:2].add(jnp.where(due, cfg.max_push_vel * kick, 0.0)))
 
     def fell(self, data) -> jax.Array:
         too_low = data.qpos[2] < self.config.termination_height
@@ -348,7 +374,7 @@ class LeggedEnv(PipelineEnv):
         return Transition(obs, reward, metrics, info, termination, truncation, k_reset)
 
     def step(self, state: State, action: jax.Array) -> State:
-        data = self.physics_step(state.pipeline_state, action)
+        data = self.physics_step(state.pipeline_state, action, state.info)
         t = self.evaluate_transition(data, action, state.info)
         done = t.termination | t.truncation
 

@@ -42,8 +42,10 @@ def fixed_command_config(env_cfg: Any, command: tuple[float, float, float], seco
         zero_below=0.0,
         resample_time_s=seconds + 1.0,
     )
+    # Deterministic: no initial noise and no domain randomization (pushes, gain draws).
+    randomization = dataclasses.replace(env_cfg.randomization, enabled=False)
     return dataclasses.replace(env_cfg, commands=commands, episode_length_s=seconds + 1.0,
-                               init_joint_noise=0.0, init_base_vel_noise=0.0)
+                               init_joint_noise=0.0, init_base_vel_noise=0.0, randomization=randomization)
 
 
 def make_actor(params: Any, normalizer: Any, network: NetworkConfig, normalize_observations: bool = True
