@@ -185,6 +185,10 @@ class ExperimentConfig:
     """Source robot training (SLRT)."""
     target: StageConfig = field(default_factory=lambda: StageConfig(robot="xbot_l"))
     """Target robot fine-tuning (TLRT)."""
+    extra_targets: tuple[str, ...] = ()
+    """More target robots, fine-tuned from the same trained source in the same program
+    (exp=xbot_to_all). Each runs every freeze preset and seed with ``target.ppo`` and its
+    robot's registry env config."""
     freeze_presets: tuple[str, ...] = ("none", "L1", "L2", "L1+L2", "scratch")
     """Target variants: what is transferred and frozen (scratch = no transfer, the baseline)."""
     network: NetworkConfig = field(default_factory=NetworkConfig)
@@ -216,6 +220,24 @@ class ExperimentConfig:
             raise ValueError(f"freeze_presets: unknown {bad}; choose from {list(FREEZE_PRESETS)}")
         if len(set(self.freeze_presets)) != len(self.freeze_presets):
             raise ValueError(f"freeze_presets has duplicates: {self.freeze_presets}")
+        import envs
+
+        unknown = [r for r in self.extra_targets if r not in envs.robot_names()]
+        if unknown:
+            raise ValueError(f"extra_targets: unknown robots {unknown}; known: {envs.robot_names()}")
+        robots = (self.target.robot, *self.extra_targets)
+        if len(set(robots)) != len(robots):
+            raise ValueError(f"target.robot and extra_targets repeat a robot: {list(robots)}")
+
+    @property
+    def targets(self) -> dict[str, StageConfig]:
+        """Every target stage by robot: ``target`` first, then ``extra_targets`` (each with
+        ``target.ppo`` and its registry env config)."""
+        import envs  # the trainer may import envs (never the reverse)
+
+        extra = {r: StageConfig(robot=r, ppo=self.target.ppo, env=envs.default_config(r))
+                 for r in self.extra_targets}
+        return {self.target.robot: self.target, **extra}
 
 
 SCALES = ("smoke", "cpu", "paper")

@@ -155,17 +155,39 @@ def preset_path(name: str) -> Path:
     candidate = EXPERIMENTS_DIR / f"{name}.yaml"
     if candidate.is_file():
         return candidate
-    known = sorted(q.stem for q in EXPERIMENTS_DIR.glob("*.yaml"))
+    known = sorted(q.stem for q in EXPERIMENTS_DIR.glob("*.yaml") if not q.stem.startswith("_"))
     raise ConfigError(f"unknown experiment {name!r}{_suggest(name, known)} Known: {', '.join(known)}")
 
 
+def _deep_merge(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def read_preset(exp: str, _seen: tuple[Path, ...] = ()) -> dict:
+    """A preset file as a nested dict, with ``extends: <other preset>`` resolved (the file's own
+    keys win, nested sections such as ``scales`` merge key by key)."""
+    path = preset_path(exp).resolve()
+    if path in _seen:
+        chain = " -> ".join(p.stem for p in (*_seen, path))
+        raise ConfigError(f"experiment presets extend each other in a cycle: {chain}")
+    with open(path) as f:
+        preset = yaml.safe_load(f) or {}
+    parent = preset.pop("extends", None)
+    if parent is None:
+        return preset
+    return _deep_merge(read_preset(str(parent), (*_seen, path)), preset)
+
+
 def load_experiment(exp: str, overrides: Mapping[str, Any] | Iterable[str] = ()) -> ExperimentConfig:
-    """Preset file -> its scale section -> overrides, into a validated ExperimentConfig."""
+    """Preset file (and what it extends) -> its scale section -> overrides, into a validated
+    ExperimentConfig."""
     if not isinstance(overrides, Mapping):
         overrides = parse_cli(overrides)
     overrides = dict(overrides)
-    with open(preset_path(exp)) as f:
-        preset = yaml.safe_load(f) or {}
+    preset = read_preset(exp)
     scales = preset.pop("scales", {}) or {}
     scale = str(overrides.pop("scale", preset.pop("scale", "cpu")))
     if scale not in SCALES:

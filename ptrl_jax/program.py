@@ -6,7 +6,9 @@
 Every target variant (freeze preset) and every seed runs under ``vmap``: the presets differ
 only in two arrays, a transfer flag and a freeze mask, so one compiled program trains them all.
 Seed k uses the same target initialisation and env stream under every preset, so presets are
-compared on paired runs.
+compared on paired runs. Several target robots (``extra_targets``, exp=xbot_to_all) start from
+the same trained source and advance together, one iteration each per step of the target loop;
+their states live in dicts keyed by robot.
 
 The program is a function of a ``ProgramState`` (``init(key)`` builds the first one):
 ``advance(state, budget)`` runs up to ``budget`` more iterations, each stage a ``while_loop``
@@ -36,10 +38,11 @@ class ProgramState(NamedTuple):
     source: TrainState
     source_metrics: dict
     """Per-iteration metrics of the source stage, leaves shaped [iterations] (filled as it runs)."""
-    targets: TrainState
-    """Target states, leaves shaped [presets, seeds, ...]; placeholders until the source is done."""
-    target_metrics: dict
-    """Leaves shaped [iterations, presets, seeds]."""
+    targets: dict[str, TrainState]
+    """Per target robot: states with leaves shaped [presets, seeds, ...]; placeholders until the
+    source is done."""
+    target_metrics: dict[str, dict]
+    """Per target robot: leaves shaped [iterations, presets, seeds]."""
     targets_started: jax.Array
     """Whether the targets have been initialised from the trained source (transfer done)."""
     target_key: jax.Array
@@ -50,10 +53,10 @@ class ProgramOutput(NamedTuple):
     source: TrainState
     source_metrics: dict
     """Per-iteration metrics of the source stage, leaves shaped [iterations]."""
-    target: TrainState
-    """Target states, leaves shaped [presets, seeds, ...]."""
-    target_metrics: dict
-    """Leaves shaped [presets, seeds, iterations]."""
+    target: dict[str, TrainState]
+    """Per target robot: states with leaves shaped [presets, seeds, ...]."""
+    target_metrics: dict[str, dict]
+    """Per target robot: leaves shaped [presets, seeds, iterations]."""
 
 
 class Program(NamedTuple):
@@ -65,9 +68,9 @@ class Program(NamedTuple):
     run: Callable[[jax.Array], ProgramOutput]
     """``run(key)``: ``output(advance(init(key), all))``, the whole chain in one function."""
     source_trainer: Trainer
-    target_trainer: Trainer
+    target_trainers: dict[str, Trainer]
     source_env: Any
-    target_env: Any
+    target_envs: dict[str, Any]
 
     @staticmethod
     def output(state: ProgramState) -> ProgramOutput:
@@ -77,7 +80,9 @@ class Program(NamedTuple):
     @staticmethod
     def iterations(state: ProgramState) -> tuple[int, int]:
         """(source iterations done, target iterations done)."""
-        tgt = int(jax.device_get(state.targets.iteration).min()) if bool(state.targets_started) else 0
+        if not bool(state.targets_started):
+            return int(state.source.iteration), 0
+        tgt = min(int(jax.device_get(t.iteration).min()) for t in state.targets.values())
         return int(state.source.iteration), tgt
 
     @staticmethod
@@ -92,19 +97,21 @@ def make_program(
     """``progress(stage_name)`` returns that stage's progress hook (or None)."""
     hook = progress or (lambda stage: None)
     source_env = envs.make(cfg.source.robot, cfg.source.env)
-    target_env = envs.make(cfg.target.robot, cfg.target.env)
     source = make_train(source_env, cfg.source.ppo, cfg.network, hook("source"))
-    target = make_train(target_env, cfg.target.ppo, cfg.network, hook("target"))
+    stages = cfg.targets
+    target_envs = {r: envs.make(r, st.env) for r, st in stages.items()}
+    targets = {r: make_train(target_envs[r], st.ppo, cfg.network, hook("target")) for r, st in stages.items()}
     presets = cfg.freeze_presets
     n_seeds = cfg.seeds
+    n_runs = len(presets) * n_seeds  # vmapped runs per target robot
     n_source, n_target = cfg.source.ppo.num_iterations, cfg.target.ppo.num_iterations
 
-    def init_targets(source_params, target_key) -> TrainState:
+    def init_robot_targets(target: Trainer, robot_index: int, source_params, target_key) -> TrainState:
         template = jax.eval_shape(target.init_params, target_key)
         zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), template)
         masks = jax.tree.map(lambda *m: jnp.stack(m), *[preset_mask(zeros, p) for p in presets])
         transfer_flags = jnp.array([FREEZE_PRESETS[p].transfer for p in presets])
-        run_ids = jnp.arange(len(presets))[:, None] * n_seeds + jnp.arange(n_seeds)[None, :]
+        run_ids = robot_index * n_runs + jnp.arange(len(presets))[:, None] * n_seeds + jnp.arange(n_seeds)[None, :]
         seed_keys = jax.random.split(target_key, n_seeds)
         hparams = cfg.target.ppo.hparams()
 
@@ -117,11 +124,19 @@ def make_program(
         over_seeds = jax.vmap(one_target, in_axes=(0, None, None, 0))
         return jax.vmap(over_seeds, in_axes=(None, 0, 0, 0))(seed_keys, transfer_flags, masks, run_ids)
 
+    @jax.jit  # traced once: init's eval_shape and advance's transfer share the trace
+    def init_targets(source_params, target_key) -> dict[str, TrainState]:
+        # The first target robot uses target_key itself (a single-target program is unchanged by
+        # the multi-target generalisation); further robots fold in their index.
+        keys = [target_key] + [jax.random.fold_in(target_key, i) for i in range(1, len(targets))]
+        return {r: init_robot_targets(t, i, source_params, keys[i]) for i, (r, t) in enumerate(targets.items())}
+
     # Wrapped in jit so that tracing happens once: ``init`` asks for the metric shapes with
     # eval_shape, and ``advance`` then reuses the same traced jaxprs (jit's trace cache) instead
     # of tracing both MJX pipelines a second time (about half of a warm start's 70 s).
     source_iteration = jax.jit(source.iteration)
-    batched_target_iteration = jax.jit(jax.vmap(jax.vmap(target.iteration)))
+    batched_target_iterations = {r: jax.jit(jax.vmap(jax.vmap(t.iteration))) for r, t in targets.items()}
+    first_target = next(iter(targets))
 
     def zeros_like_shapes(tree):
         return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), tree)
@@ -132,12 +147,12 @@ def make_program(
         params = source.init_params(init_key)
         src = source.init(train_key, cfg.source.ppo.hparams(), empty_mask(params), params)
         src_metrics = jax.eval_shape(source_iteration, src)[1]
-        targets = jax.eval_shape(init_targets, params, target_key)
-        tgt_metrics = jax.eval_shape(batched_target_iteration, targets)[1]
+        tgts = jax.eval_shape(init_targets, params, target_key)
+        tgt_metrics = {r: jax.eval_shape(batched_target_iterations[r], tgts[r])[1] for r in targets}
         return ProgramState(
             source=src,
             source_metrics=jax.tree.map(lambda s: jnp.zeros((n_source, *s.shape), s.dtype), src_metrics),
-            targets=zeros_like_shapes(targets),
+            targets=zeros_like_shapes(tgts),
             target_metrics=jax.tree.map(lambda s: jnp.zeros((n_target, *s.shape), s.dtype), tgt_metrics),
             targets_started=jnp.array(False),
             target_key=target_key,
@@ -152,10 +167,12 @@ def make_program(
 
     def target_body(carry):
         state, done = carry
-        i = state.targets.iteration[0, 0]
-        tgt, metrics = batched_target_iteration(state.targets)
+        i = state.targets[first_target].iteration[0, 0]
+        stepped = {r: batched_target_iterations[r](state.targets[r]) for r in targets}
+        tgts = {r: stepped[r][0] for r in targets}
+        metrics = {r: stepped[r][1] for r in targets}
         buffers = jax.tree.map(lambda b, v: b.at[i].set(v), state.target_metrics, metrics)
-        return state._replace(targets=tgt, target_metrics=buffers), done + 1
+        return state._replace(targets=tgts, target_metrics=buffers), done + 1
 
     def start_targets(state: ProgramState) -> ProgramState:
         return state._replace(targets=init_targets(state.source.params, state.target_key),
@@ -169,7 +186,8 @@ def make_program(
         begin = (state.source.iteration >= n_source) & ~state.targets_started
         state = jax.lax.cond(begin, start_targets, lambda s: s, state)
         state, _ = jax.lax.while_loop(
-            lambda c: c[0].targets_started & (c[0].targets.iteration[0, 0] < n_target) & (c[1] < budget),
+            lambda c: c[0].targets_started & (c[0].targets[first_target].iteration[0, 0] < n_target)
+            & (c[1] < budget),
             target_body, (state, done),
         )
         return state
@@ -177,4 +195,4 @@ def make_program(
     def run(key: jax.Array) -> ProgramOutput:
         return Program.output(advance(init(key), jnp.int32(n_source + n_target)))
 
-    return Program(init, advance, run, source, target, source_env, target_env)
+    return Program(init, advance, run, source, targets, source_env, target_envs)

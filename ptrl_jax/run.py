@@ -46,7 +46,7 @@ class Progress:
     the iterations of each slice (exact when ``checkpoint_every`` is 1)."""
 
     def __init__(self, cfg: ExperimentConfig, show: bool):
-        n_targets = len(cfg.freeze_presets) * cfg.seeds
+        n_targets = len(cfg.freeze_presets) * cfg.seeds * len(cfg.targets)
         self.n_targets = n_targets
         self.totals = {
             "source": cfg.source.ppo.num_iterations,
@@ -155,15 +155,18 @@ def metric_rows(
 
     src = jax.device_get(out.source_metrics)
     add("source", cfg.source.robot, "source", 0, 0, src)
-    tgt = jax.device_get(out.target_metrics)
-    for p, preset in enumerate(cfg.freeze_presets):
-        for s in range(cfg.seeds):
-            add("target", cfg.target.robot, preset, s, p * cfg.seeds + s, jax.tree.map(lambda x: x[p, s], tgt))
+    n_runs = len(cfg.freeze_presets) * cfg.seeds
+    for k, robot in enumerate(cfg.targets):
+        tgt = jax.device_get(out.target_metrics[robot])
+        for p, preset in enumerate(cfg.freeze_presets):
+            for s in range(cfg.seeds):
+                run_id = k * n_runs + p * cfg.seeds + s  # as program.init_targets numbers them
+                add("target", robot, preset, s, run_id, jax.tree.map(lambda x: x[p, s], tgt))
     return rows
 
 
-def stage_meta(cfg: ExperimentConfig, stage: str, preset: str, seed: int) -> dict[str, Any]:
-    sc = getattr(cfg, stage)
+def stage_meta(cfg: ExperimentConfig, stage: str, preset: str, seed: int, robot: str | None = None) -> dict[str, Any]:
+    sc = cfg.source if stage == "source" else cfg.targets[robot or cfg.target.robot]
     return {
         "robot": sc.robot, "stage": stage, "preset": preset, "seed": seed, "experiment": cfg.name,
         "network": to_dict(cfg.network), "env": to_dict(sc.env),
@@ -181,33 +184,47 @@ def save_outputs(
         artifacts.save_checkpoint(
             run_dir / "source.npz", src.params, src.normalizer, src.frozen, stage_meta(cfg, "source", "source", 0)
         )
-        tgt = jax.device_get(out.target)
-        for p, preset in enumerate(cfg.freeze_presets):
-            for s in range(cfg.seeds):
-                pick = lambda x: x[p, s]  # noqa: E731
-                artifacts.save_checkpoint(
-                    run_dir / f"target_{preset}_seed{s}.npz",
-                    jax.tree.map(pick, tgt.params), jax.tree.map(pick, tgt.normalizer),
-                    jax.tree.map(pick, tgt.frozen), stage_meta(cfg, "target", preset, s),
-                )
-    curves = summary.curves_by_preset(rows)
-    table, threshold = summary.preset_summary(curves, cfg.report.threshold_fraction, cfg.report.final_window)
-    title = f"{cfg.name}: {cfg.source.robot} -> {cfg.target.robot} ({cfg.scale})"
+        multi = len(cfg.targets) > 1
+        for robot in cfg.targets:
+            tgt = jax.device_get(out.target[robot])
+            for p, preset in enumerate(cfg.freeze_presets):
+                for s in range(cfg.seeds):
+                    pick = lambda x: x[p, s]  # noqa: E731
+                    name = f"target_{robot}_{preset}_seed{s}.npz" if multi else f"target_{preset}_seed{s}.npz"
+                    artifacts.save_checkpoint(
+                        run_dir / name,
+                        jax.tree.map(pick, tgt.params), jax.tree.map(pick, tgt.normalizer),
+                        jax.tree.map(pick, tgt.frozen), stage_meta(cfg, "target", preset, s, robot),
+                    )
     source_curve = [(r["env_steps"], r["episode_reward"]) for r in rows if r["stage"] == "source"]
-    summary.plot_curves(run_dir / "curves.png", curves, title, source_curve)
     src_final = np.mean([r for _, r in source_curve][-cfg.report.final_window:])
-    notes = [
+    common = [
         f"Source {cfg.source.robot}: {cfg.source.ppo.num_iterations} iterations x "
         f"{cfg.source.ppo.env_steps_per_iteration} env steps, final mean episode reward {src_final:.3f}",
-        f"Target {cfg.target.robot}: {cfg.target.ppo.num_iterations} iterations x "
-        f"{cfg.target.ppo.env_steps_per_iteration} env steps per run, {cfg.seeds} seed(s) per preset",
         f"Final reward = mean over the last {cfg.report.final_window} iterations; AUC = reward "
         f"integrated over env steps / steps (a mean reward over training); wall time counts from "
         f"the start of the target stage, all presets running together under vmap",
         *extra_notes,
     ]
-    artifacts.atomic_write_text(run_dir / "report.md", summary.format_report(title, table, threshold, notes))
-    return {"rows": rows, "summary": table, "threshold": threshold}
+    sections, tables = [], {}
+    for robot in cfg.targets:
+        robot_rows = [r for r in rows if r["stage"] == "source" or r["robot"] == robot]
+        curves = summary.curves_by_preset(robot_rows)
+        table, threshold = summary.preset_summary(curves, cfg.report.threshold_fraction, cfg.report.final_window)
+        title = f"{cfg.name}: {cfg.source.robot} -> {robot} ({cfg.scale})"
+        png = f"curves_{robot}.png" if len(cfg.targets) > 1 else "curves.png"
+        summary.plot_curves(run_dir / png, curves, title, source_curve)
+        notes = [f"Target {robot}: {cfg.target.ppo.num_iterations} iterations x "
+                 f"{cfg.target.ppo.env_steps_per_iteration} env steps per run, {cfg.seeds} seed(s) per preset"]
+        if len(cfg.targets) > 1:
+            notes.append(f"All {len(cfg.targets)} target robots ran in the same program, one iteration "
+                         f"each per step of the target loop; wall times are shared")
+        sections.append(summary.format_report(title, table, threshold, common[:1] + notes + common[1:]))
+        tables[robot] = (table, threshold)
+    artifacts.atomic_write_text(run_dir / "report.md", "\n".join(sections))
+    table, threshold = tables[cfg.target.robot]
+    return {"rows": rows, "summary": table, "threshold": threshold,
+            "summaries": {robot: t for robot, (t, _) in tables.items()}}
 
 
 def new_run_dir(cfg: ExperimentConfig) -> Path:
@@ -259,7 +276,7 @@ def save_resume_state(cfg: ExperimentConfig, run_dir: Path, state: Any, progress
     meta = {"experiment": cfg.name, "jax": jax.__version__, "times": times,
             "stage_start": progress.stage_start,
             "source_iteration": int(np.asarray(state.source.iteration)),
-            "target_iteration": int(np.asarray(state.targets.iteration).min())}
+            "target_iteration": min(int(np.asarray(t.iteration).min()) for t in state.targets.values())}
     artifacts.save_state(run_dir / RESUME_STATE, state, meta)
 
 
@@ -271,7 +288,7 @@ _PROGRAMS: dict[tuple, tuple] = {}
 
 def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array, budget: np.int32):
     """(program, jitted init, compiled advance) for ``cfg``."""
-    cache_key = (cfg.source, cfg.target, cfg.network, cfg.freeze_presets, cfg.seeds)
+    cache_key = (cfg.source, cfg.target, cfg.extra_targets, cfg.network, cfg.freeze_presets, cfg.seeds)
     if not progress.show and cache_key in _PROGRAMS:
         return _PROGRAMS[cache_key]
     program = make_program(cfg, progress.hook)

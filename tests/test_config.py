@@ -51,3 +51,49 @@ class TestRefusedRunWritesNothing:
         assert code == 2
         assert "clip_epsilon" in capsys.readouterr().err
         assert not runs.exists()
+
+
+PAPER_TRANSFERS = ["go2_to_xbot", "mit_to_xbot", "xbot_to_mit", "xbot_to_cassie", "xbot_to_tron1",
+                   "xbot_to_go2", "xbot_to_a1", "xbot_to_anymal_b", "xbot_to_anymal_c", "xbot_to_all"]
+
+
+class TestPresets:
+    @pytest.mark.parametrize("exp", PAPER_TRANSFERS)
+    @pytest.mark.parametrize("scale", ["smoke", "cpu", "paper"])
+    def test_every_paper_transfer_resolves_at_every_scale(self, exp, scale):
+        cfg = load_experiment(exp, [f"scale={scale}"])
+        assert cfg.name == exp and cfg.scale == scale
+        src, _, tgt = exp.partition("_to_")
+        alias = {"xbot": "xbot_l", "mit": "mit_humanoid"}
+        assert cfg.source.robot == alias.get(src, src)
+        if tgt != "all":
+            assert list(cfg.targets) == [alias.get(tgt, tgt)]
+        assert cfg.freeze_presets == ("none", "L1", "L2", "L1+L2", "scratch")
+
+    def test_xbot_to_all_fine_tunes_the_seven_other_robots(self):
+        import envs
+
+        cfg = load_experiment("xbot_to_all", ["scale=smoke"])
+        assert sorted(cfg.targets) == sorted(r for r in envs.robot_names() if r != "xbot_l")
+        for robot, stage in cfg.targets.items():
+            assert stage.env == envs.default_config(robot) and stage.ppo == cfg.target.ppo
+
+    def test_extends_merges_scales_key_by_key(self):
+        cfg = load_experiment("xbot_to_go2", ["scale=smoke", "target.ppo.num_iterations=3"])
+        assert cfg.target.ppo.num_iterations == 3  # the command line wins
+        assert cfg.source.ppo.num_envs == 16  # from _transfer's smoke section
+        assert cfg.network.init_noise_std == 0.5  # from _transfer's top level
+
+    def test_an_extends_cycle_is_refused(self, tmp_path):
+        (tmp_path / "a.yaml").write_text(f"extends: {tmp_path / 'b.yaml'}\n")
+        (tmp_path / "b.yaml").write_text(f"extends: {tmp_path / 'a.yaml'}\n")
+        with pytest.raises(ConfigError, match="cycle: a -> b -> a"):
+            load_experiment(str(tmp_path / "a.yaml"))
+
+    @pytest.mark.parametrize("arg,message", [
+        ("extra_targets=[go2,robodog]", "extra_targets: unknown robots \\['robodog'\\]"),
+        ("extra_targets=[xbot_l]", "repeat a robot"),
+    ])
+    def test_bad_extra_targets_are_refused(self, arg, message):
+        with pytest.raises(ConfigError, match=message):
+            load_experiment("go2_to_xbot", [arg])
