@@ -3,9 +3,13 @@
 import csv
 
 import numpy as np
+import pytest
 import yaml
 
 from ptrl_jax import artifacts
+
+# One xdist worker runs every test of the shared smoke run (tests/conftest.py: smoke_run).
+pytestmark = pytest.mark.xdist_group("smoke_go2_to_xbot")
 
 PRESETS = ("none", "L1", "L2", "L1+L2", "scratch")
 

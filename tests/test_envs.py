@@ -12,19 +12,6 @@ import envs
 from envs.quadruped import QuadrupedEnv
 
 
-def rollout(env, n_envs=8, steps=10, seed=0, action_scale=0.3):
-    reset = jax.jit(jax.vmap(env.reset))
-    step = jax.jit(jax.vmap(env.step))
-    state = reset(jax.random.split(jax.random.PRNGKey(seed), n_envs))
-    states = [state]
-    key = jax.random.PRNGKey(seed + 1)
-    for _ in range(steps):
-        key, k = jax.random.split(key)
-        state = step(state, action_scale * jax.random.normal(k, (n_envs, env.action_size)))
-        states.append(state)
-    return states
-
-
 def expected_sizes(env) -> tuple[int, int]:
     """(actor obs, critic obs) sizes as each family's docstring states them, from the joint count."""
     n = env.action_size
@@ -34,7 +21,9 @@ def expected_sizes(env) -> tuple[int, int]:
     return frame * env.config.frame_stack, frame + 3 + 1 + 2 + 2 + n
 
 
-@pytest.fixture(scope="module", params=envs.robot_names())
+# One xdist worker per robot's compile: both tests of a robot share its fixture.
+@pytest.fixture(scope="module", params=[pytest.param(r, marks=pytest.mark.xdist_group(f"walk_{r}"))
+                                        for r in envs.robot_names()])
 def held_default_pose(request):
     """Every registered robot: reset 4 envs and apply 2 s of zero actions (the PD law holding the
     default pose), all under one jit (one compile per robot)."""
@@ -60,9 +49,10 @@ def held_default_pose(request):
 
 
 # Physics, not a bug: the bipeds cannot stand on a fixed-target PD law with their reference gains
-# (tests/test_assets.py and assets/README.md: XBot-L's ankle Kp 15 against about -373 N m/rad of
-# gravity stiffness); it tips forward from about 1.5 s. A policy has to balance it.
-PASSIVELY_UNSTABLE = {"xbot_l"}
+# (assets/README.md, and the strict xfails of tests/test_assets*.py): XBot-L's ankle Kp 15 against
+# about -373 N m/rad of gravity stiffness; the MIT Humanoid's COM behind its ankles with Kp 30;
+# Cassie's sagging tarsus and soft toe; TRON1's point feet. A policy has to balance them.
+PASSIVELY_UNSTABLE = {"xbot_l", "mit_humanoid", "cassie", "tron1"}
 
 
 class TestRegistryWalk:
@@ -107,22 +97,29 @@ class TestGo2Observation:
 
 
 class TestAutoReset:
-    def test_time_out_is_truncation_not_termination(self, go2_env):
-        cfg = dataclasses.replace(go2_env.config, episode_length_s=3 * go2_env.config.ctrl_dt)
-        env = envs.make("go2", cfg)
-        states = rollout(env, n_envs=4, steps=3, action_scale=0.0)
-        last = states[-1]
-        assert np.all(np.asarray(last.done) == 1)
-        assert np.all(np.asarray(last.info["truncation"]) == 1)
-        assert np.all(np.asarray(last.info["termination"]) == 0)
-        assert np.all(np.asarray(last.info["step"]) == 0)  # reset happened
-        # final_obs is the pre-reset observation, obs the fresh one
-        assert not np.allclose(last.info["final_obs"]["state"], last.obs["state"])
+    """Both tests step one Go2 env with the same compiled step (one MJX compile)."""
 
-    def test_non_finite_physics_ends_the_episode_with_zero_reward(self, go2_env):
-        s = jax.jit(go2_env.reset)(jax.random.PRNGKey(0))
+    @pytest.fixture(scope="class")
+    def go2_step(self, go2_env):
+        return jax.jit(go2_env.step), jax.jit(go2_env.reset)
+
+    def test_time_out_is_truncation_not_termination(self, go2_env, go2_step):
+        step, reset = go2_step
+        s = reset(jax.random.PRNGKey(0))
+        last_step = go2_env.config.episode_steps - 1  # the next step reaches the time limit
+        s = s.replace(info={**s.info, "step": jnp.asarray(last_step, jnp.int32)})
+        out = step(s, jnp.zeros(go2_env.action_size))
+        assert float(out.done) == 1.0
+        assert float(out.info["truncation"]) == 1.0 and float(out.info["termination"]) == 0.0
+        assert int(out.info["step"]) == 0  # reset happened
+        # final_obs is the pre-reset observation, obs the fresh one
+        assert not np.allclose(out.info["final_obs"]["state"], out.obs["state"])
+
+    def test_non_finite_physics_ends_the_episode_with_zero_reward(self, go2_step):
+        step, reset = go2_step
+        s = reset(jax.random.PRNGKey(0))
         bad = s.replace(pipeline_state=s.pipeline_state.replace(qvel=s.pipeline_state.qvel.at[0].set(jnp.nan)))
-        out = jax.jit(go2_env.step)(bad, jnp.zeros(12))
+        out = step(bad, jnp.zeros(12))
         assert float(out.info["nonfinite"]) == 1 and float(out.info["termination"]) == 1
         assert float(out.reward) == 0.0
         assert np.all(np.isfinite(out.obs["state"])) and np.all(np.isfinite(out.pipeline_state.qpos))
@@ -132,3 +129,42 @@ class TestRegistry:
     def test_unknown_robot_suggests(self):
         with pytest.raises(ValueError, match="did you mean 'go2'"):
             envs.make("go3")
+
+
+BIPEDS = [r for r in envs.robot_names() if not isinstance(envs.make(r), QuadrupedEnv)]
+
+
+@pytest.mark.parametrize("robot", BIPEDS)
+class TestReferenceGait:
+    """The biped reference gait (envs/biped.py), checked by MuJoCo C forward kinematics at the
+    peak of the left swing: the swing joints' indices and signs are per-robot configuration, and
+    a wrong sign pushes the swing foot into the ground instead of lifting it."""
+
+    def _feet_at(self, env, q):
+        import mujoco
+
+        m = env.mj_model
+        d = mujoco.MjData(m)
+        d.qpos[:] = m.key("home").qpos
+        d.qpos[7:] = q
+        mujoco.mj_kinematics(m, d)
+        sites = [m.site(n).id for n in env.config.foot_sites]
+        return d.site_xpos[sites].copy(), d.site_xmat[sites].reshape(2, 3, 3).copy()
+
+    def test_left_swing_lifts_the_left_foot_to_the_clearance_target(self, robot):
+        env = envs.make(robot)
+        peak = 0.75 * env.config.cycle_time / env.config.ctrl_dt  # sin(2 pi phase) = -1
+        ref, stance = env.reference({"step": jnp.asarray(peak)})
+        assert np.asarray(stance).tolist() == [False, True]
+        (home_pos, home_rot) = self._feet_at(env, env.mj_model.key("home").qpos[7:])
+        (pos, rot) = self._feet_at(env, np.asarray(ref))
+        lift = pos[0, 2] - home_pos[0, 2]
+        assert 0.5 * env.config.target_feet_height < lift < 1.5 * env.config.target_feet_height, lift
+        np.testing.assert_allclose(pos[1], home_pos[1], atol=1e-6)  # the stance foot stays put
+        assert abs(pos[0, 0] - home_pos[0, 0]) < 0.03  # lifted, not dragged back or thrown forward
+
+    def test_double_support_reference_is_the_default_pose(self, robot):
+        env = envs.make(robot)
+        ref, stance = env.reference({"step": jnp.asarray(0)})  # sin = 0: both feet down
+        assert np.asarray(stance).tolist() == [True, True]
+        np.testing.assert_allclose(np.asarray(ref), env.mj_model.key("home").qpos[7:], atol=1e-7)

@@ -19,6 +19,9 @@ from ptrl_jax.artifacts import CheckpointError
 from ptrl_jax.evaluate import policy_from_checkpoint
 from ptrl_jax.overrides import ConfigError
 
+# One xdist worker runs every test of the shared smoke run (tests/conftest.py: smoke_run).
+pytestmark = pytest.mark.xdist_group("smoke_go2_to_xbot")
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
