@@ -11,6 +11,14 @@ from __future__ import annotations
 
 import signal
 import sys
+
+if __name__ == "__main__" and "scale=smoke" in sys.argv[1:]:
+    # Before jax's backend exists (the imports below create it): compile-bound smoke runs
+    # compile about 2.5x faster with these XLA settings (ptrl_jax/xla_flags.py).
+    from ptrl_jax.xla_flags import use_fast_compile
+
+    use_fast_compile()
+
 import threading
 import time
 from datetime import datetime
