@@ -300,7 +300,9 @@ class LeggedEnv(PipelineEnv):
         tau = kp_scale * self._kp * (target - self.joint_pos(data))
         return motor_strength * jnp.clip(tau, -self._torque_limit, self._torque_limit)
 
-    def physics_step(self, data, action: jax.Array, info: dict | None = None):
+    def physics_step(self, data, action: jax.Array, info: dict):
+        """``decimation`` physics steps under the PD law; ``info`` carries the episode's domain
+        randomization draw (read only when randomization is enabled)."""
         target = self.joint_targets(action)
         sys, kp_scale, strength = self.sys, 1.0, 1.0
         if self.config.randomization.enabled:

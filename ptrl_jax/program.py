@@ -90,6 +90,12 @@ class Program(NamedTuple):
         return Program.iterations(state)[1] >= cfg.target.ppo.num_iterations
 
 
+def target_run_id(cfg: ExperimentConfig, robot_index, preset_index, seed):
+    """The id of one vmapped target run (it tags progress stamps): robots, then presets, then
+    seeds, counting from 0. Works on ints and on broadcasting arrays alike."""
+    return (robot_index * len(cfg.freeze_presets) + preset_index) * cfg.seeds + seed
+
+
 def make_program(
     cfg: ExperimentConfig,
     progress: Callable[[str], ProgressFn | None] | None = None,
@@ -103,7 +109,6 @@ def make_program(
     targets = {r: make_train(target_envs[r], st.ppo, cfg.network, hook("target")) for r, st in stages.items()}
     presets = cfg.freeze_presets
     n_seeds = cfg.seeds
-    n_runs = len(presets) * n_seeds  # vmapped runs per target robot
     n_source, n_target = cfg.source.ppo.num_iterations, cfg.target.ppo.num_iterations
 
     def init_robot_targets(target: Trainer, robot_index: int, source_params, target_key) -> TrainState:
@@ -111,7 +116,7 @@ def make_program(
         zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), template)
         masks = jax.tree.map(lambda *m: jnp.stack(m), *[preset_mask(zeros, p) for p in presets])
         transfer_flags = jnp.array([FREEZE_PRESETS[p].transfer for p in presets])
-        run_ids = robot_index * n_runs + jnp.arange(len(presets))[:, None] * n_seeds + jnp.arange(n_seeds)[None, :]
+        run_ids = target_run_id(cfg, robot_index, jnp.arange(len(presets))[:, None], jnp.arange(n_seeds)[None, :])
         seed_keys = jax.random.split(target_key, n_seeds)
         hparams = cfg.target.ppo.hparams()
 

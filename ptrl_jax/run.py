@@ -33,7 +33,7 @@ from ptrl_jax import artifacts, summary
 from ptrl_jax.config import ExperimentConfig
 from ptrl_jax.artifacts import CheckpointError
 from ptrl_jax.overrides import ConfigError, build_config, flatten, load_experiment, parse_cli, to_dict
-from ptrl_jax.program import ProgramOutput, make_program
+from ptrl_jax.program import Program, ProgramOutput, make_program, target_run_id
 
 USAGE = """usage: python -m ptrl_jax.run exp=NAME [scale=smoke|cpu|paper] [key=value ...]
        python -m ptrl_jax.run resume=runs/NAME/STAMP
@@ -163,13 +163,11 @@ def metric_rows(
 
     src = jax.device_get(out.source_metrics)
     add("source", cfg.source.robot, "source", 0, 0, src)
-    n_runs = len(cfg.freeze_presets) * cfg.seeds
     for k, robot in enumerate(cfg.targets):
         tgt = jax.device_get(out.target_metrics[robot])
         for p, preset in enumerate(cfg.freeze_presets):
             for s in range(cfg.seeds):
-                run_id = k * n_runs + p * cfg.seeds + s  # as program.init_targets numbers them
-                add("target", robot, preset, s, run_id, jax.tree.map(lambda x: x[p, s], tgt))
+                add("target", robot, preset, s, target_run_id(cfg, k, p, s), jax.tree.map(lambda x: x[p, s], tgt))
     return rows
 
 
@@ -186,13 +184,13 @@ def save_outputs(
     cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput, times: dict, extra_notes=(), stage_start=None
 ) -> dict:
     rows = metric_rows(cfg, out, times, stage_start)
+    multi = len(cfg.targets) > 1  # several target robots: file names carry the robot
     artifacts.write_metrics_csv(run_dir / "metrics.csv", rows)
     if cfg.checkpoint:
         src = jax.device_get(out.source)
         artifacts.save_checkpoint(
             run_dir / "source.npz", src.params, src.normalizer, src.frozen, stage_meta(cfg, "source", "source", 0)
         )
-        multi = len(cfg.targets) > 1
         for robot in cfg.targets:
             tgt = jax.device_get(out.target[robot])
             for p, preset in enumerate(cfg.freeze_presets):
@@ -220,11 +218,11 @@ def save_outputs(
         curves = summary.curves_by_preset(robot_rows)
         table, threshold = summary.preset_summary(curves, cfg.report.threshold_fraction, cfg.report.final_window)
         title = f"{cfg.name}: {cfg.source.robot} -> {robot} ({cfg.scale})"
-        png = f"curves_{robot}.png" if len(cfg.targets) > 1 else "curves.png"
+        png = f"curves_{robot}.png" if multi else "curves.png"
         summary.plot_curves(run_dir / png, curves, title, source_curve)
         notes = [f"Target {robot}: {cfg.target.ppo.num_iterations} iterations x "
                  f"{cfg.target.ppo.env_steps_per_iteration} env steps per run, {cfg.seeds} seed(s) per preset"]
-        if len(cfg.targets) > 1:
+        if multi:
             notes.append(f"All {len(cfg.targets)} target robots ran in the same program, one iteration "
                          f"each per step of the target loop; wall times are shared")
         sections.append(summary.format_report(title, table, threshold, common[:1] + notes + common[1:]))
@@ -283,8 +281,8 @@ def save_resume_state(cfg: ExperimentConfig, run_dir: Path, state: Any, progress
     times = [[s, r, i, t] for (s, r, i), t in progress.times.items()]
     meta = {"experiment": cfg.name, "jax": jax.__version__, "times": times,
             "stage_start": progress.stage_start,
-            "source_iteration": int(np.asarray(state.source.iteration)),
-            "target_iteration": min(int(np.asarray(t.iteration).min()) for t in state.targets.values())}
+            "source_iteration": Program.iterations(state)[0],
+            "target_iteration": Program.iterations(state)[1]}
     artifacts.save_state(run_dir / RESUME_STATE, state, meta)
 
 
