@@ -12,7 +12,7 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
-from ptrl_jax.freeze import FREEZE_PRESETS
+from ptrl_jax.freeze import FREEZE_PRESETS, ratio_name
 
 
 @dataclass(frozen=True)
@@ -191,6 +191,13 @@ class ExperimentConfig:
     robot's registry env config."""
     freeze_presets: tuple[str, ...] = ("none", "L1", "L2", "L1+L2", "scratch")
     """Target variants: what is transferred and frozen (scratch = no transfer, the baseline)."""
+    freeze_ratio: tuple[float, ...] = ()
+    """Continuous freeze ratios rho in [0, 1], run as more target variants beside
+    ``freeze_presets`` (named ``rho<r>``): L1 and L2 transferred and the first ceil(rho n) output
+    units of each frozen (``freeze.ratio_preset``)."""
+    source_checkpoint: str = ""
+    """A trained source (``source.npz`` of an earlier run) to transfer from instead of training
+    one: the source stage is skipped, so ablations over target variants reuse one source."""
     network: NetworkConfig = field(default_factory=NetworkConfig)
     """Actor-critic sizes, shared by source and target so the hidden layers transfer."""
     report: ReportConfig = field(default_factory=ReportConfig)
@@ -213,13 +220,16 @@ class ExperimentConfig:
             raise ValueError(f"checkpoint_every must be >= 0, got {self.checkpoint_every}")
         if self.seeds < 1:
             raise ValueError(f"seeds must be >= 1, got {self.seeds}")
-        if not self.freeze_presets:
-            raise ValueError("freeze_presets must name at least one preset")
+        if not self.freeze_presets and not self.freeze_ratio:
+            raise ValueError("freeze_presets and freeze_ratio are both empty: name at least one variant")
         bad = [p for p in self.freeze_presets if p not in FREEZE_PRESETS]
         if bad:
             raise ValueError(f"freeze_presets: unknown {bad}; choose from {list(FREEZE_PRESETS)}")
-        if len(set(self.freeze_presets)) != len(self.freeze_presets):
-            raise ValueError(f"freeze_presets has duplicates: {self.freeze_presets}")
+        out_of_range = [r for r in self.freeze_ratio if not 0.0 <= float(r) <= 1.0]
+        if out_of_range:
+            raise ValueError(f"freeze_ratio: {out_of_range} outside [0, 1] (the frozen fraction of L1 and L2)")
+        if len(set(self.variants)) != len(self.variants):
+            raise ValueError(f"freeze_presets / freeze_ratio repeat a variant: {list(self.variants)}")
         import envs
 
         unknown = [r for r in self.extra_targets if r not in envs.robot_names()]
@@ -228,6 +238,16 @@ class ExperimentConfig:
         robots = (self.target.robot, *self.extra_targets)
         if len(set(robots)) != len(robots):
             raise ValueError(f"target.robot and extra_targets repeat a robot: {list(robots)}")
+
+    @property
+    def variants(self) -> tuple[str, ...]:
+        """Every target variant, in program order: the presets, then the freeze ratios."""
+        return (*self.freeze_presets, *(ratio_name(r) for r in self.freeze_ratio))
+
+    @property
+    def source_iterations(self) -> int:
+        """Source iterations the program runs: 0 when it starts from ``source_checkpoint``."""
+        return 0 if self.source_checkpoint else self.source.ppo.num_iterations
 
     @property
     def targets(self) -> dict[str, StageConfig]:

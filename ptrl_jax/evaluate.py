@@ -3,6 +3,8 @@
     python -m ptrl_jax.evaluate ckpt=runs/go2_to_xbot/<stamp>/source.npz vx=0.5 seconds=20
     python -m ptrl_jax.evaluate ckpt=... sim=mujoco        # MJX and MuJoCo C, side by side
     python -m ptrl_jax.evaluate ckpt=... mcap=rollout.mcap # also write the rollout for Foxglove
+    python -m ptrl_jax.evaluate ckpt=... schedule=fig6 plot=tracking.png   # paper Fig. 6
+    python -m ptrl_jax.evaluate ckpt=... filmstrip=go2.png                 # paper Figs. 4, 8, 9
 
 The policy's mean action is applied (no sampling), the command is held fixed, and the episode
 time limit is lifted, so the rollout ends only by a fall or after ``seconds``. ``sim=mjx`` (the
@@ -16,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import sys
+from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import jax
@@ -25,6 +28,7 @@ import numpy as np
 import envs
 from ptrl_jax.artifacts import CheckpointError, load_checkpoint
 from ptrl_jax.config import NetworkConfig
+from ptrl_jax.figures import FIG6_SCHEDULE, schedule_commands
 from ptrl_jax.networks import policy_apply
 from ptrl_jax.overrides import ConfigError, apply_overrides, flatten, parse_cli
 from ptrl_jax.train import normalize_obs
@@ -59,14 +63,20 @@ def make_actor(params: Any, normalizer: Any, network: NetworkConfig, normalize_o
     return act
 
 
-def rollout_mjx(robot: str, env_cfg: Any, actor, command, seconds: float, seed: int = 0) -> dict[str, Any]:
+def rollout_mjx(robot: str, env_cfg: Any, actor, command, seconds: float, seed: int = 0,
+                schedule=None) -> dict[str, Any]:
     """Records of a fixed-command rollout in the MJX env: each ``[T, ...]``; ``alive`` is False
-    from the step after a fall (the env auto-resets; those steps are not counted)."""
+    from the step after a fall (the env auto-resets; those steps are not counted). With a
+    ``schedule`` (rows of [vx, vy, yaw_rate], ``figures.schedule_commands``) the command steps
+    through its rows instead of holding ``command``."""
     env = envs.make(robot, fixed_command_config(env_cfg, command, seconds))
     steps = int(round(seconds / env.config.ctrl_dt))
+    commands = None if schedule is None else jnp.asarray(schedule_commands(schedule, steps))
 
-    def step(carry, _):
+    def step(carry, command_now):
         state, alive = carry
+        if command_now is not None:
+            state = state.replace(info={**state.info, "command": command_now})
         nxt = env.step(state, actor(state.obs))
         data = nxt.pipeline_state
         fell = nxt.info["termination"] > 0
@@ -81,7 +91,7 @@ def rollout_mjx(robot: str, env_cfg: Any, actor, command, seconds: float, seed: 
     @jax.jit
     def rollout(key):
         state = env.reset(key)
-        _, records = jax.lax.scan(step, (state, jnp.array(True)), None, length=steps)
+        _, records = jax.lax.scan(step, (state, jnp.array(True)), commands, length=steps)
         return records
 
     rec = jax.device_get(rollout(jax.random.PRNGKey(seed)))
@@ -158,16 +168,43 @@ def evaluate_policy(
     normalize_observations: bool = True,
     sim: str = "mjx",
     mcap_path: str | None = None,
+    schedule=None,
+    plot_path: str | None = None,
+    filmstrip_path: str | None = None,
 ) -> dict[str, Any]:
-    """Roll out one env for ``seconds`` under a fixed command; report tracking and falls."""
+    """Roll out one env for ``seconds`` under a fixed command (or a ``schedule`` of commands,
+    MJX only); report tracking and falls. Optionally write the rollout as MCAP, the velocity
+    tracking figure (Fig. 6) and a filmstrip (Figs. 4, 8, 9)."""
     if sim not in SIMS:
         raise ValueError(f"sim={sim!r}: choose one of {SIMS}")
+    if schedule is not None and sim != "mjx":
+        raise ValueError("a command schedule needs sim=mjx (the MuJoCo C env holds one command)")
     actor = make_actor(params, normalizer, network, normalize_observations)
-    rollout = rollout_mjx if sim == "mjx" else rollout_mujoco
-    rec = rollout(robot, env_cfg, actor, tuple(float(c) for c in command), seconds, seed)
+    if sim == "mjx":
+        rec = rollout_mjx(robot, env_cfg, actor, tuple(float(c) for c in command), seconds, seed, schedule)
+    else:
+        rec = rollout_mujoco(robot, env_cfg, actor, tuple(float(c) for c in command), seconds, seed)
     if mcap_path is not None:
         write_mcap(mcap_path, rec)
-    return summarize(rec, robot, command, seconds, sim)
+    title = f"{robot} ({sim})"
+    if plot_path is not None:
+        from ptrl_jax.figures import plot_velocity_tracking
+
+        plot_velocity_tracking(plot_path, rec, f"{title}: commanded and actual base velocity")
+    if filmstrip_path is not None:
+        from ptrl_jax.figures import save_filmstrip
+
+        save_filmstrip(filmstrip_path, rec, title)
+    result = summarize(rec, robot, command, seconds, sim)
+    if schedule is not None:
+        # Per-step tracking against the commands actually given (the fixed-command fields above
+        # compare with ``command``, which a schedule replaces).
+        alive = np.asarray(rec["alive"]).astype(bool)
+        err = np.asarray(rec["velocity"])[alive] - np.asarray(rec["command"])[alive]
+        result["command"] = "schedule"
+        result["forward_speed_error"] = float(np.mean(np.abs(err[:, 0]))) if alive.any() else float("nan")
+        result["tracking_rmse"] = float(np.sqrt(np.mean(err ** 2))) if alive.any() else float("nan")
+    return result
 
 
 def write_mcap(path: str, rec: Mapping[str, Any]) -> dict[str, int]:
@@ -218,7 +255,22 @@ def type_stats(d: Mapping[str, Any]):
     return RunningStats(mean=jnp.asarray(d["mean"]), m2=jnp.asarray(d["m2"]), count=jnp.asarray(d["count"]))
 
 
-KNOWN_ARGS = ("ckpt", "vx", "vy", "yaw", "seconds", "sim", "seed", "mcap")
+KNOWN_ARGS = ("ckpt", "vx", "vy", "yaw", "seconds", "sim", "seed", "mcap", "plot", "filmstrip", "schedule")
+
+
+def parse_schedule(text: str):
+    """``schedule=fig6`` (``figures.FIG6_SCHEDULE``) or ``schedule=[[vx,vy,yaw],...]``."""
+    if text == "fig6":
+        return FIG6_SCHEDULE
+    import yaml
+
+    try:
+        rows = yaml.safe_load(text)
+        schedule_commands(rows, 1)
+    except Exception:
+        raise ConfigError(f"schedule={text!r}: give fig6 or a list of [vx,vy,yaw_rate] rows, "
+                          f"e.g. schedule=[[0.3,0,0],[0.6,0,0.3]]") from None
+    return tuple(tuple(float(x) for x in row) for row in rows)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -237,6 +289,12 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"sim={sim!r}: choose one of {', '.join(SIMS)}")
         if seconds <= 0:
             raise ConfigError(f"seconds={seconds}: must be > 0")
+        schedule = parse_schedule(args["schedule"]) if "schedule" in args else None
+        if schedule is not None and sim != "mjx":
+            raise ConfigError("schedule=... needs sim=mjx (the MuJoCo C env holds one command)")
+        for key in ("plot", "filmstrip", "mcap"):
+            if key in args and not Path(args[key]).parent.exists():
+                raise ConfigError(f"{key}={args[key]}: folder {Path(args[key]).parent} does not exist")
         policy = policy_from_checkpoint(args["ckpt"])
     except (ConfigError, CheckpointError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
@@ -244,13 +302,15 @@ def main(argv: list[str] | None = None) -> int:
     common = dict(robot=policy["robot"], env_cfg=policy["env"], params=policy["params"],
                   normalizer=policy["normalizer"], network=policy["network"], command=command,
                   seconds=seconds, seed=seed, normalize_observations=policy["normalize_observations"])
-    results = [evaluate_policy(**common, sim="mjx", mcap_path=args.get("mcap") if sim == "mjx" else None)]
+    results = [evaluate_policy(**common, sim="mjx", mcap_path=args.get("mcap") if sim == "mjx" else None,
+                               schedule=schedule, plot_path=args.get("plot"), filmstrip_path=args.get("filmstrip"))]
     if sim == "mujoco":
         results.append(evaluate_policy(**common, sim="mujoco", mcap_path=args.get("mcap")))
         print(format_side_by_side(results))
     print(json.dumps(results if len(results) > 1 else results[0], indent=2))
-    if "mcap" in args:
-        print(f"wrote {args['mcap']}")
+    for key in ("mcap", "plot", "filmstrip"):
+        if key in args:
+            print(f"wrote {args[key]}")
     return 0
 
 

@@ -16,6 +16,7 @@ Freezing under Adam takes three guards, each of which alone is not enough:
 
 from __future__ import annotations
 
+import math
 from typing import Mapping
 
 import jax
@@ -29,13 +30,15 @@ HIDDEN_LAYERS: dict[str, str] = {"L1": "layer_1", "L2": "layer_2"}
 
 
 class FreezePreset:
-    """What a preset transfers and what it freezes."""
+    """What a target variant transfers and what it freezes: the first ``ceil(ratio * n)`` output
+    units of each layer in ``frozen`` (``ratio`` 1: the whole layer, the paper's presets)."""
 
-    def __init__(self, name: str, transfer: bool, frozen: tuple[str, ...]):
-        self.name, self.transfer, self.frozen = name, transfer, frozen
+    def __init__(self, name: str, transfer: bool, frozen: tuple[str, ...], ratio: float = 1.0):
+        self.name, self.transfer, self.frozen, self.ratio = name, transfer, frozen, ratio
 
     def __repr__(self) -> str:
-        return f"FreezePreset({self.name!r}, transfer={self.transfer}, frozen={self.frozen})"
+        return (f"FreezePreset({self.name!r}, transfer={self.transfer}, frozen={self.frozen}, "
+                f"ratio={self.ratio})")
 
 
 FREEZE_PRESETS: Mapping[str, FreezePreset] = {
@@ -47,6 +50,47 @@ FREEZE_PRESETS: Mapping[str, FreezePreset] = {
 }
 
 
+RATIO_PREFIX = "rho"
+"""Variant names ``rho<r>`` (``rho0.25``) are continuous freeze ratios; see ``ratio_preset``."""
+
+
+def ratio_name(rho: float) -> str:
+    """The variant name of freeze ratio ``rho``: 0.25 -> 'rho0.25'."""
+    return f"{RATIO_PREFIX}{float(rho):g}"
+
+
+def ratio_preset(rho: float) -> FreezePreset:
+    """Freeze ratio ``rho`` in [0, 1]: transfer L1 and L2, then freeze the first ``ceil(rho n)``
+    of the n output units of each (their weight columns and biases), the rest fine-tuned.
+
+    Every transferred layer then has the same frozen share, ceil(rho n) / n, so the frozen
+    fraction of the transferable parameters is rho up to rounding (exactly rho when rho n is an
+    integer for both layers, as for the quarters with 256 and 128 units): rho = 0 is the 'none'
+    preset and rho = 1 is 'L1+L2'. A frozen unit keeps the source's feature of its inputs;
+    freezing output units (not input rows) keeps whole features, which is what a transferred
+    prior is made of, and keeps the next layer's inputs from those units stable.
+    """
+    rho = float(rho)
+    if not 0.0 <= rho <= 1.0:
+        raise ValueError(f"freeze ratio must be in [0, 1], got {rho}")
+    return FreezePreset(ratio_name(rho), transfer=True, frozen=("L1", "L2"), ratio=rho)
+
+
+def variant(name: str) -> FreezePreset:
+    """The preset named ``name``: one of FREEZE_PRESETS, or ``rho<r>`` for a freeze ratio."""
+    if name in FREEZE_PRESETS:
+        return FREEZE_PRESETS[name]
+    if name.startswith(RATIO_PREFIX):
+        try:
+            rho = float(name[len(RATIO_PREFIX):])
+        except ValueError:
+            rho = None
+        if rho is not None:
+            return ratio_preset(rho)
+    raise ValueError(f"unknown freeze preset {name!r}; choose from {list(FREEZE_PRESETS)} "
+                     f"or {RATIO_PREFIX}<r> with r in [0, 1]")
+
+
 def _path_names(path) -> tuple[str, ...]:
     return tuple(str(getattr(k, "key", getattr(k, "name", k))) for k in path)
 
@@ -55,8 +99,10 @@ def empty_mask(params: Params) -> Mask:
     return jax.tree.map(lambda p: jnp.zeros(p.shape, bool), params)
 
 
-def layer_mask(params: Params, layers: tuple[str, ...]) -> Mask:
-    """Mask that freezes every leaf under ``actor/<layer>`` for the given paper layer names."""
+def layer_mask(params: Params, layers: tuple[str, ...], ratio: float = 1.0) -> Mask:
+    """Mask that freezes the leaves under ``actor/<layer>`` for the given paper layer names:
+    all of them (``ratio`` 1), or the first ``ceil(ratio * n)`` of the layer's n output units
+    (weight columns ``w[:, :k]`` and biases ``b[:k]``)."""
     unknown = [layer for layer in layers if layer not in HIDDEN_LAYERS]
     if unknown:
         raise ValueError(f"unknown layer(s) {unknown}; transferable layers are {list(HIDDEN_LAYERS)}")
@@ -65,15 +111,30 @@ def layer_mask(params: Params, layers: tuple[str, ...]) -> Mask:
     def leaf(path, p):
         parts = _path_names(path)
         frozen = len(parts) >= 2 and parts[0] == "actor" and parts[1] in names
-        return jnp.full(p.shape, frozen, bool)
+        if not frozen or ratio >= 1.0:
+            return jnp.full(p.shape, frozen, bool)
+        units = p.shape[-1]  # w: [in, out], b: [out]
+        k = math.ceil(ratio * units - 1e-9)  # tolerate float noise: 0.3 * 10 is 3.0000000000000004
+        return jnp.broadcast_to(jnp.arange(units) < k, p.shape)
 
     return jax.tree_util.tree_map_with_path(leaf, params)
 
 
 def preset_mask(params: Params, preset: str) -> Mask:
-    if preset not in FREEZE_PRESETS:
-        raise ValueError(f"unknown freeze preset {preset!r}; choose from {list(FREEZE_PRESETS)}")
-    return layer_mask(params, FREEZE_PRESETS[preset].frozen)
+    """The freeze mask of a preset or freeze-ratio variant (see ``variant``)."""
+    v = variant(preset)
+    return layer_mask(params, v.frozen, v.ratio)
+
+
+def frozen_fraction(mask: Mask) -> float:
+    """The frozen share of the transferable parameters (actor L1 and L2, weights and biases)."""
+    names = set(HIDDEN_LAYERS.values())
+    frozen = total = 0
+    for path, m in jax.tree_util.tree_leaves_with_path(mask):
+        parts = _path_names(path)
+        if len(parts) >= 2 and parts[0] == "actor" and parts[1] in names:
+            frozen, total = frozen + int(jnp.sum(m)), total + m.size
+    return frozen / total if total else 0.0
 
 
 def count_frozen(mask: Mask) -> int:

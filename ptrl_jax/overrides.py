@@ -188,6 +188,9 @@ def load_experiment(exp: str, overrides: Mapping[str, Any] | Iterable[str] = ())
         overrides = parse_cli(overrides)
     overrides = dict(overrides)
     preset = read_preset(exp)
+    if "batch" in preset:
+        raise ConfigError(f"exp={exp} is a batch of experiments ({', '.join(map(str, preset['batch']))}): "
+                          f"run it with python -m ptrl_jax.run exp={exp} (ptrl_jax.batch.run_batch)")
     scales = preset.pop("scales", {}) or {}
     scale = str(overrides.pop("scale", preset.pop("scale", "cpu")))
     if scale not in SCALES:

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 
 import envs
 from ptrl_jax.config import ExperimentConfig
-from ptrl_jax.freeze import FREEZE_PRESETS, empty_mask, preset_mask, transfer
+from ptrl_jax.freeze import empty_mask, preset_mask, transfer, variant
 from ptrl_jax.train import ProgressFn, Trainer, TrainState, make_train
 
 
@@ -60,8 +60,9 @@ class ProgramOutput(NamedTuple):
 
 
 class Program(NamedTuple):
-    init: Callable[[jax.Array], ProgramState]
-    """``init(key)``: the initial state (jit it)."""
+    init: Callable[..., ProgramState]
+    """``init(key, source_params=None)``: the initial state (jit it); ``source_params``, a
+    trained source's parameters, when the config starts from ``source_checkpoint``."""
     advance: Callable[[ProgramState, jax.Array], ProgramState]
     """``advance(state, budget)``: run up to ``budget`` more iterations, source stage first,
     then (after the transfer) the target stage (jit it; ``budget`` is a traced int)."""
@@ -93,7 +94,7 @@ class Program(NamedTuple):
 def target_run_id(cfg: ExperimentConfig, robot_index, preset_index, seed):
     """The id of one vmapped target run (it tags progress stamps): robots, then presets, then
     seeds, counting from 0. Works on ints and on broadcasting arrays alike."""
-    return (robot_index * len(cfg.freeze_presets) + preset_index) * cfg.seeds + seed
+    return (robot_index * len(cfg.variants) + preset_index) * cfg.seeds + seed
 
 
 def make_program(
@@ -107,15 +108,15 @@ def make_program(
     stages = cfg.targets
     target_envs = {r: envs.make(r, st.env) for r, st in stages.items()}
     targets = {r: make_train(target_envs[r], st.ppo, cfg.network, hook("target")) for r, st in stages.items()}
-    presets = cfg.freeze_presets
+    presets = cfg.variants
     n_seeds = cfg.seeds
-    n_source, n_target = cfg.source.ppo.num_iterations, cfg.target.ppo.num_iterations
+    n_source, n_target = cfg.source_iterations, cfg.target.ppo.num_iterations
 
     def init_robot_targets(target: Trainer, robot_index: int, source_params, target_key) -> TrainState:
         template = jax.eval_shape(target.init_params, target_key)
         zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), template)
         masks = jax.tree.map(lambda *m: jnp.stack(m), *[preset_mask(zeros, p) for p in presets])
-        transfer_flags = jnp.array([FREEZE_PRESETS[p].transfer for p in presets])
+        transfer_flags = jnp.array([variant(p).transfer for p in presets])
         run_ids = target_run_id(cfg, robot_index, jnp.arange(len(presets))[:, None], jnp.arange(n_seeds)[None, :])
         seed_keys = jax.random.split(target_key, n_seeds)
         hparams = cfg.target.ppo.hparams()
@@ -146,10 +147,12 @@ def make_program(
     def zeros_like_shapes(tree):
         return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), tree)
 
-    def init(key: jax.Array) -> ProgramState:
+    def init(key: jax.Array, source_params=None) -> ProgramState:
         source_key, target_key = jax.random.split(key)
         init_key, train_key = jax.random.split(source_key)
-        params = source.init_params(init_key)
+        if (source_params is None) != (not cfg.source_checkpoint):
+            raise ValueError("init: pass source_params exactly when the config has a source_checkpoint")
+        params = source.init_params(init_key) if source_params is None else source_params
         src = source.init(train_key, cfg.source.ppo.hparams(), empty_mask(params), params)
         src_metrics = jax.eval_shape(source_iteration, src)[1]
         tgts = jax.eval_shape(init_targets, params, target_key)
@@ -185,9 +188,10 @@ def make_program(
 
     def advance(state: ProgramState, budget: jax.Array) -> ProgramState:
         done = jnp.zeros((), jnp.int32)
-        state, done = jax.lax.while_loop(
-            lambda c: (c[0].source.iteration < n_source) & (c[1] < budget), source_body, (state, done)
-        )
+        if n_source:  # a source from a checkpoint (n_source = 0) compiles no source stage at all
+            state, done = jax.lax.while_loop(
+                lambda c: (c[0].source.iteration < n_source) & (c[1] < budget), source_body, (state, done)
+            )
         begin = (state.source.iteration >= n_source) & ~state.targets_started
         state = jax.lax.cond(begin, start_targets, lambda s: s, state)
         state, _ = jax.lax.while_loop(

@@ -54,10 +54,10 @@ class Progress:
     the iterations of each slice (exact when ``checkpoint_every`` is 1)."""
 
     def __init__(self, cfg: ExperimentConfig, show: bool):
-        n_targets = len(cfg.freeze_presets) * cfg.seeds * len(cfg.targets)
+        n_targets = len(cfg.variants) * cfg.seeds * len(cfg.targets)
         self.n_targets = n_targets
         self.totals = {
-            "source": cfg.source.ppo.num_iterations,
+            "source": cfg.source_iterations,
             "target": cfg.target.ppo.num_iterations * n_targets,
         }
         self.steps_per_call = {
@@ -115,8 +115,10 @@ class Progress:
         return callback
 
     def last_time_before(self, stage: str) -> float:
-        if stage == "target" and self.times:
-            return max(t for (s, _, _), t in self.times.items() if s == "source")
+        # The target stage starts when the source's last iteration ends (at 0 when the source
+        # comes from a checkpoint and has no iterations).
+        if stage == "target":
+            return max((t for (s, _, _), t in self.times.items() if s == "source"), default=0.0)
         return 0.0
 
     def _update_bar(self, stage: str, now: float, reward: float) -> None:
@@ -165,7 +167,7 @@ def metric_rows(
     add("source", cfg.source.robot, "source", 0, 0, src)
     for k, robot in enumerate(cfg.targets):
         tgt = jax.device_get(out.target_metrics[robot])
-        for p, preset in enumerate(cfg.freeze_presets):
+        for p, preset in enumerate(cfg.variants):
             for s in range(cfg.seeds):
                 add("target", robot, preset, s, target_run_id(cfg, k, p, s), jax.tree.map(lambda x: x[p, s], tgt))
     return rows
@@ -193,7 +195,7 @@ def save_outputs(
         )
         for robot in cfg.targets:
             tgt = jax.device_get(out.target[robot])
-            for p, preset in enumerate(cfg.freeze_presets):
+            for p, preset in enumerate(cfg.variants):
                 for s in range(cfg.seeds):
                     pick = lambda x: x[p, s]  # noqa: E731
                     name = f"target_{robot}_{preset}_seed{s}.npz" if multi else f"target_{preset}_seed{s}.npz"
@@ -203,10 +205,14 @@ def save_outputs(
                         jax.tree.map(pick, tgt.frozen), stage_meta(cfg, "target", preset, s, robot),
                     )
     source_curve = [(r["env_steps"], r["episode_reward"]) for r in rows if r["stage"] == "source"]
-    src_final = np.mean([r for _, r in source_curve][-cfg.report.final_window:])
+    if cfg.source_checkpoint:
+        source_note = f"Source {cfg.source.robot}: loaded from {cfg.source_checkpoint} (not trained in this run)"
+    else:
+        src_final = np.mean([r for _, r in source_curve][-cfg.report.final_window:])
+        source_note = (f"Source {cfg.source.robot}: {cfg.source.ppo.num_iterations} iterations x "
+                       f"{cfg.source.ppo.env_steps_per_iteration} env steps, final mean episode reward {src_final:.3f}")
     common = [
-        f"Source {cfg.source.robot}: {cfg.source.ppo.num_iterations} iterations x "
-        f"{cfg.source.ppo.env_steps_per_iteration} env steps, final mean episode reward {src_final:.3f}",
+        source_note,
         f"Final reward = mean over the last {cfg.report.final_window} iterations; AUC = reward "
         f"integrated over env steps / steps (a mean reward over training); wall time counts from "
         f"the start of the target stage, all presets running together under vmap",
@@ -225,7 +231,14 @@ def save_outputs(
         if multi:
             notes.append(f"All {len(cfg.targets)} target robots ran in the same program, one iteration "
                          f"each per step of the target loop; wall times are shared")
-        sections.append(summary.format_report(title, table, threshold, common[:1] + notes + common[1:]))
+        text = summary.format_report(title, table, threshold, common[:1] + notes + common[1:])
+        ratio_rows = summary.ratio_table(table)
+        if ratio_rows:
+            png = f"freeze_ratio_{robot}.png" if multi else "freeze_ratio.png"
+            scratch = next((r for r in table if r["preset"] == "scratch"), None)
+            summary.plot_freeze_ratio(run_dir / png, ratio_rows, scratch, title)
+            text += "\n" + summary.format_ratio_table(ratio_rows, png)
+        sections.append(text)
         tables[robot] = (table, threshold)
     artifacts.atomic_write_text(run_dir / "report.md", "\n".join(sections))
     table, threshold = tables[cfg.target.robot]
@@ -292,14 +305,40 @@ def save_resume_state(cfg: ExperimentConfig, run_dir: Path, state: Any, progress
 _PROGRAMS: dict[tuple, tuple] = {}
 
 
+def load_source_params(cfg: ExperimentConfig, program: Program) -> Any:
+    """The parameters of ``cfg.source_checkpoint``, checked against this experiment's source
+    robot and network; None when the config trains its own source."""
+    if not cfg.source_checkpoint:
+        return None
+    path = Path(cfg.source_checkpoint)
+    ckpt = artifacts.load_checkpoint(path)
+    robot = ckpt["meta"].get("robot")
+    if robot != cfg.source.robot:
+        raise CheckpointError(f"source_checkpoint {path} is a {robot!r} policy; this experiment's "
+                              f"source.robot is {cfg.source.robot!r}")
+    template = jax.eval_shape(program.source_trainer.init_params, jax.random.PRNGKey(0))
+    flat = dict(jax.tree_util.tree_leaves_with_path(ckpt["params"]))
+    want = dict(jax.tree_util.tree_leaves_with_path(template))
+    for name in sorted(set(map(jax.tree_util.keystr, want)) ^ set(map(jax.tree_util.keystr, flat))):
+        raise CheckpointError(f"source_checkpoint {path}: parameter {name} is in only one of the "
+                              f"checkpoint and this experiment's network")
+    for k, like in want.items():
+        if flat[k].shape != like.shape:
+            raise CheckpointError(f"source_checkpoint {path}: {jax.tree_util.keystr(k)} is "
+                                  f"{list(flat[k].shape)}, this network needs {list(like.shape)}")
+    return jax.tree.map(lambda x, like: np.asarray(x, like.dtype), ckpt["params"], template)
+
+
 def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array, budget: np.int32):
     """(program, jitted init, compiled advance) for ``cfg``."""
-    cache_key = (cfg.source, cfg.target, cfg.extra_targets, cfg.network, cfg.freeze_presets, cfg.seeds)
+    cache_key = (cfg.source, cfg.target, cfg.extra_targets, cfg.network, cfg.variants, cfg.seeds,
+                 bool(cfg.source_checkpoint))
     if not progress.show and cache_key in _PROGRAMS:
         return _PROGRAMS[cache_key]
     program = make_program(cfg, progress.hook)
     init = jax.jit(program.init)
-    advance = jax.jit(program.advance).lower(jax.eval_shape(init, key), budget).compile()
+    source_params = load_source_params(cfg, program)
+    advance = jax.jit(program.advance).lower(jax.eval_shape(init, key, source_params), budget).compile()
     if not progress.show:
         _PROGRAMS[cache_key] = (program, init, advance)
     return program, init, advance
@@ -315,17 +354,18 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     call when it is 0), and the whole state is saved between slices."""
     show = cfg.progress if show_progress is None else show_progress
     progress = Progress(cfg, show)
-    run_dir = resume_from or run_dir or new_run_dir(cfg)
     key = jax.random.PRNGKey(cfg.seed)
-    total = cfg.source.ppo.num_iterations + cfg.target.ppo.num_iterations
+    total = cfg.source_iterations + cfg.target.ppo.num_iterations
     budget = np.int32(cfg.checkpoint_every or total)
     t = time.monotonic()
     program, init, advance = _compiled_program(cfg, progress, key, budget)
+    run_dir = resume_from or run_dir or new_run_dir(cfg)  # after compiling: a refused run writes nothing
+    source_params = load_source_params(cfg, program)
     if resume_from is not None:
-        state, meta = artifacts.load_state(run_dir / RESUME_STATE, jax.eval_shape(init, key))
+        state, meta = artifacts.load_state(run_dir / RESUME_STATE, jax.eval_shape(init, key, source_params))
         progress.restore(meta)
     else:
-        state = init(key)
+        state = init(key, source_params)
     compile_s = time.monotonic() - t
     if resume_from is None:
         artifacts.write_config(run_dir / "config.yaml", to_dict(cfg))
@@ -397,6 +437,15 @@ def main(argv: list[str] | None = None) -> int:
         exp = args.pop("exp", None)
         if exp is None:
             raise ConfigError("exp=NAME is required (e.g. exp=go2_to_xbot)")
+        from ptrl_jax import batch
+
+        if batch.is_batch(exp):  # several experiments and one table (exp=table4)
+            result = batch.run_batch(exp, args)
+            print(f"batch folder: {result['run_dir']}")
+            table = result["run_dir"] / "table4.md"
+            if table.is_file():
+                print(table.read_text())
+            return 130 if result["interrupted"] else 0
         cfg = load_experiment(exp, args)
     except (ConfigError, CheckpointError) as e:
         print(f"error: {e}", file=sys.stderr)

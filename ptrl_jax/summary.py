@@ -56,11 +56,69 @@ def preset_summary(
                 "auc_mean": float(np.mean(auc)),
                 "auc_std": float(np.std(auc)),
                 "steps_to_threshold_mean": float(np.nanmean(t_steps)) if not np.all(np.isnan(t_steps)) else None,
+                "steps_to_threshold_std": float(np.nanstd(t_steps)) if not np.all(np.isnan(t_steps)) else None,
                 "wall_s_to_threshold_mean": float(np.nanmean(t_wall)) if not np.all(np.isnan(t_wall)) else None,
                 "seeds_reaching_threshold": int(sum(i is not None for i in first)),
             }
         )
     return rows, threshold
+
+
+def ratio_table(summary: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The freeze-ratio variants (``rho<r>``) of a preset summary, with ``rho``, sorted by it."""
+    from ptrl_jax.freeze import RATIO_PREFIX
+
+    rows = []
+    for r in summary:
+        name = r["preset"]
+        if name.startswith(RATIO_PREFIX):
+            rows.append({**r, "rho": float(name[len(RATIO_PREFIX):])})
+    return sorted(rows, key=lambda r: r["rho"])
+
+
+def plot_freeze_ratio(path: Path, rows: Sequence[Mapping[str, Any]], scratch: Mapping[str, Any] | None,
+                      title: str) -> None:
+    """Final reward, AUC and env steps to threshold against the freeze ratio rho (mean and std
+    over seeds); the scratch baseline as a dashed line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rho = np.array([r["rho"] for r in rows])
+    panels = [("final_reward", "final episode reward"), ("auc", "AUC (mean reward over training)"),
+              ("steps_to_threshold", "env steps to threshold")]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    for ax, (key, label) in zip(axes, panels):
+        mean = np.array([np.nan if r[f"{key}_mean"] is None else r[f"{key}_mean"] for r in rows], float)
+        std = np.array([np.nan if r[f"{key}_std"] is None else r[f"{key}_std"] for r in rows], float)
+        ax.errorbar(rho, mean, yerr=std, marker="o", capsize=3, label="transfer, freeze ratio rho")
+        if scratch is not None and scratch.get(f"{key}_mean") is not None:
+            ax.axhline(scratch[f"{key}_mean"], color="k", ls="--", lw=1, label="scratch")
+        ax.set_xlabel("freeze ratio rho (frozen share of L1, L2)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def format_ratio_table(rows: Sequence[Mapping[str, Any]], png: str) -> str:
+    def f(v, fmt="{:.3f}"):
+        return "n/a" if v is None or (isinstance(v, float) and np.isnan(v)) else fmt.format(v)
+
+    lines = ["## Freeze ratio", "", f"![freeze ratio]({png})", "",
+             "| rho | final reward (mean ± std) | AUC (mean ± std) | env steps to threshold (mean ± std) | seeds reaching |",
+             "|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['rho']:g} | {f(r['final_reward_mean'])} ± {f(r['final_reward_std'])} | "
+            f"{f(r['auc_mean'])} ± {f(r['auc_std'])} | {f(r['steps_to_threshold_mean'], '{:.0f}')} ± "
+            f"{f(r['steps_to_threshold_std'], '{:.0f}')} | {r['seeds_reaching_threshold']}/{r['seeds']} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def plot_curves(

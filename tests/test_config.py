@@ -17,6 +17,14 @@ class TestOverrides:
         assert cfg.source.env.commands.lin_vel_x == (0.0, 1.0)
         assert cfg.source.ppo.num_envs == 32  # from the smoke section
 
+    def test_freeze_ratios_follow_the_presets_as_variants(self):
+        cfg = load_experiment("go2_to_xbot", ["freeze_presets=[L2,scratch]", "freeze_ratio=[0,0.25,1]"])
+        assert cfg.variants == ("L2", "scratch", "rho0", "rho0.25", "rho1")
+        only_ratios = load_experiment("go2_to_xbot", ["freeze_presets=[]", "freeze_ratio=[0.5]"])
+        assert only_ratios.variants == ("rho0.5",)
+        with pytest.raises(ConfigError, match="both empty"):
+            load_experiment("go2_to_xbot", ["freeze_presets=[]"])
+
     @pytest.mark.parametrize("arg,message", [
         ("ppo.learning_rate=1e-3", "did you mean '(source|target).ppo.learning_rate'"),
         ("target.ppo.learnin_rate=1e-3", "did you mean 'target.ppo.learning_rate'"),
@@ -24,6 +32,8 @@ class TestOverrides:
         ("target.ppo.gamma=1.5", "gamma must be in"),
         ("target.ppo.num_minibatches=7", "not divisible"),
         ("freeze_presets=[L3]", "unknown \\['L3'\\]"),
+        ("freeze_ratio=[0.5,1.5]", "freeze_ratio: \\[1.5\\] outside \\[0, 1\\]"),
+        ("freeze_ratio=[0.5,0.5]", "repeat a variant"),
         ("scale=huge", "scale must be one of"),
         ("target.robot=xbot", "did you mean 'xbot_l'"),
         ("source.env.kp=[1,2,3]", None),  # caught when the env is built (3 values for 12 joints)

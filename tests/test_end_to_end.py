@@ -12,16 +12,20 @@ from ptrl_jax import artifacts
 pytestmark = pytest.mark.xdist_group("smoke_go2_to_xbot")
 
 PRESETS = ("none", "L1", "L2", "L1+L2", "scratch")
+RATIOS = ("rho0.25", "rho0.5", "rho0.75")  # go2_to_xbot.yaml's freeze_ratio
+VARIANTS = PRESETS + RATIOS
 
 
 class TestSmokeRunOutputs:
     def test_files(self, smoke_run):
         cfg, run_dir = smoke_run
         names = {p.name for p in run_dir.iterdir()}
-        expected = {"config.yaml", "metrics.csv", "curves.png", "report.md", "source.npz"}
-        expected |= {f"target_{p}_seed{s}.npz" for p in PRESETS for s in range(cfg.seeds)}
+        expected = {"config.yaml", "metrics.csv", "curves.png", "freeze_ratio.png", "report.md", "source.npz"}
+        expected |= {f"target_{p}_seed{s}.npz" for p in VARIANTS for s in range(cfg.seeds)}
+        assert cfg.variants == VARIANTS and cfg.seeds == 2
         assert expected <= names, expected - names
-        assert (run_dir / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        for png in ("curves.png", "freeze_ratio.png"):
+            assert (run_dir / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         resolved = yaml.safe_load((run_dir / "config.yaml").read_text())
         assert resolved["target"]["robot"] == "xbot_l" and resolved["scale"] == "smoke"
 
@@ -29,7 +33,7 @@ class TestSmokeRunOutputs:
         cfg, run_dir = smoke_run
         rows = list(csv.DictReader(open(run_dir / "metrics.csv")))
         n_src, n_tgt = cfg.source.ppo.num_iterations, cfg.target.ppo.num_iterations
-        assert len(rows) == n_src + len(PRESETS) * cfg.seeds * n_tgt
+        assert len(rows) == n_src + len(VARIANTS) * cfg.seeds * n_tgt
         cols = set(rows[0])
         for c in ("stage", "preset", "seed", "iteration", "env_steps", "wall_time_s", "episode_reward",
                   "episode_length", "kl", "learning_rate", "episode_reward/tracking_lin_vel", "episode_reward/joint_pos"):
@@ -54,11 +58,30 @@ class TestSmokeRunOutputs:
         assert both["meta"]["robot"] == "xbot_l" and both["meta"]["preset"] == "L1+L2"
         assert set(both["normalizer"]) == {"state", "privileged_state"}
 
+    def test_freeze_ratio_freezes_the_first_units(self, smoke_run):
+        _, run_dir = smoke_run
+        src = artifacts.load_checkpoint(run_dir / "source.npz")["params"]["actor"]
+        for name, rho in (("rho0.25", 0.25), ("rho0.5", 0.5), ("rho0.75", 0.75)):
+            ckpt = artifacts.load_checkpoint(run_dir / f"target_{name}_seed1.npz")
+            for layer, units in (("layer_1", 256), ("layer_2", 128)):
+                k = int(rho * units)
+                w, frozen = ckpt["params"]["actor"][layer]["w"], ckpt["frozen"]["actor"][layer]["w"]
+                assert frozen[:, :k].all() and not frozen[:, k:].any(), (name, layer)
+                assert np.array_equal(w[:, :k], src[layer]["w"][:, :k]), (name, layer)  # kept
+                assert not np.array_equal(w[:, k:], src[layer]["w"][:, k:]), (name, layer)  # fine-tuned
+            assert ckpt["meta"]["preset"] == name
+
     def test_report_agrees_with_metrics(self, smoke_run):
         cfg, run_dir = smoke_run
         rows = artifacts.read_metrics_csv(run_dir / "metrics.csv")
         report = (run_dir / "report.md").read_text()
-        for preset in PRESETS:
+        ratio_section = report.split("## Freeze ratio", 1)[1]
+        for name in RATIOS:
+            finals = [np.mean([r["episode_reward"] for r in rows if r["stage"] == "target" and r["preset"] == name
+                               and r["seed"] == s][-cfg.report.final_window:]) for s in range(cfg.seeds)]
+            line = next(l for l in ratio_section.splitlines() if l.startswith(f"| {name[3:]} |"))
+            assert f"{np.mean(finals):.3f} ± {np.std(finals):.3f}" in line, (name, line)
+        for preset in VARIANTS:
             finals = []
             for s in range(cfg.seeds):
                 curve = [r["episode_reward"] for r in rows if r["stage"] == "target" and r["preset"] == preset and r["seed"] == s]

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ptrl_jax.config import NetworkConfig
-from ptrl_jax.freeze import FREEZE_PRESETS, count_frozen, masked, preset_mask
+from ptrl_jax.freeze import FREEZE_PRESETS, count_frozen, frozen_fraction, masked, preset_mask, variant
 from ptrl_jax.networks import init_actor_critic
 from ptrl_jax.optim import AdamState, apply_updates, chain, clip_by_global_norm, global_norm, scale_by_adam
 
@@ -35,6 +35,46 @@ class TestMasks:
                 assert bool(leaf.all()) == expected and bool(leaf.any()) == expected, (name, keys)
         assert count_frozen(preset_mask(p, "L1")) == 16 * 8 + 8
         assert count_frozen(preset_mask(p, "L1+L2")) == 16 * 8 + 8 + 8 * 4 + 4
+
+
+class TestFreezeRatio:
+    """rho freezes the first ceil(rho n) output units of L1 (16x8 here) and L2 (8x4)."""
+
+    def test_quarter_freezes_the_first_units_of_each_layer(self):
+        mask = preset_mask(small_params(), "rho0.25")
+        l1, l2 = mask["actor"]["layer_1"], mask["actor"]["layer_2"]
+        # ceil(0.25 * 8) = 2 of L1's units, ceil(0.25 * 4) = 1 of L2's: columns and biases.
+        np.testing.assert_array_equal(l1["w"], np.broadcast_to(np.arange(8) < 2, (16, 8)))
+        np.testing.assert_array_equal(l1["b"], np.arange(8) < 2)
+        np.testing.assert_array_equal(l2["w"], np.broadcast_to(np.arange(4) < 1, (8, 4)))
+        np.testing.assert_array_equal(l2["b"], np.arange(4) < 1)
+        assert count_frozen(mask) == 2 * 17 + 1 * 9  # nothing outside L1 and L2
+
+    def test_rounds_up_to_whole_units(self):
+        # 0.3 * 8 = 2.4 -> 3 units; 0.3 * 4 = 1.2 -> 2 units.
+        mask = preset_mask(small_params(), "rho0.3")
+        assert count_frozen(mask) == 3 * 17 + 2 * 9
+        assert abs(frozen_fraction(mask) - (3 * 17 + 2 * 9) / (8 * 17 + 4 * 9)) < 1e-12
+
+    def test_ends_equal_the_paper_presets(self):
+        p = small_params()
+        for rho, preset in ((0.0, "none"), (1.0, "L1+L2")):
+            got, want = preset_mask(p, f"rho{rho:g}"), preset_mask(p, preset)
+            assert jax.tree.all(jax.tree.map(lambda a, b: bool((a == b).all()), got, want)), rho
+        assert frozen_fraction(preset_mask(p, "rho1")) == 1.0
+        assert frozen_fraction(preset_mask(p, "rho0")) == 0.0
+
+    def test_ratio_variants_transfer(self):
+        assert variant("rho0.5").transfer and variant("rho0.5").ratio == 0.5
+
+    def test_bad_names_are_refused(self):
+        for bad in ("rho1.5", "rho-0.1", "rhox", "L3"):
+            try:
+                variant(bad)
+            except ValueError as e:
+                assert bad in str(e) or "[0, 1]" in str(e)
+            else:
+                raise AssertionError(f"{bad} was accepted")
 
 
 class TestMaskedAdam:

@@ -1,0 +1,113 @@
+"""Batches: several experiments run by one command, then one table over them.
+
+A batch preset (``experiments/table4.yaml``) names its experiments under ``batch:``, settings
+for all of them under ``overrides:`` and per scale under ``scales:``, and the table to build.
+``python -m ptrl_jax.run exp=table4 [scale=...] [key=value ...]`` then runs every experiment as
+a normal run in ``runs/table4/<stamp>/<experiment>/`` and writes ``table4.csv`` and
+``table4.md`` beside them, rewritten after each experiment so a later failure loses nothing.
+
+Command-line keys apply to every experiment of the batch, and ``<experiment>.<key>=value`` to
+that one only (``go2_to_xbot.source_checkpoint=runs/.../source.npz``). Every experiment's config
+is built and validated before the first one starts.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+from ptrl_jax import artifacts, transfer_table
+from ptrl_jax.config import SCALES, ExperimentConfig
+from ptrl_jax.overrides import ConfigError, flatten, load_experiment, read_preset
+
+BATCH_KEYS = ("batch", "overrides", "scales", "table", "transfer_preset")
+
+
+def is_batch(exp: str) -> bool:
+    return "batch" in read_preset(exp)
+
+
+def batch_configs(exp: str, cli: Mapping[str, Any]) -> tuple[dict[str, ExperimentConfig], dict[str, Any]]:
+    """({experiment: its config}, batch settings) for a batch preset and command-line keys."""
+    spec = read_preset(exp)
+    unknown = sorted(set(spec) - set(BATCH_KEYS))
+    if unknown:
+        raise ConfigError(f"batch preset {exp}: unknown key(s) {unknown}; a batch has {list(BATCH_KEYS)}")
+    children = list(spec["batch"] or [])
+    if not children:
+        raise ConfigError(f"batch preset {exp}: 'batch' lists no experiments")
+    cli = dict(cli)
+    scale = str(cli.pop("scale", "cpu"))
+    if scale not in SCALES:
+        raise ConfigError(f"scale must be one of {SCALES}, got {scale!r}")
+    settings = {"name": Path(exp).stem, "scale": scale, "table": spec.get("table", "table4"),
+                "transfer_preset": str(cli.pop("transfer_preset", spec.get("transfer_preset", "L2"))),
+                "runs_dir": str(cli.pop("runs_dir", "runs"))}
+    shared = {**flatten(spec.get("overrides") or {}), **flatten((spec.get("scales") or {}).get(scale) or {})}
+    per_child: dict[str, dict] = {c: {} for c in children}
+    common = {}
+    for key, value in cli.items():
+        head, _, rest = key.partition(".")
+        if head in per_child and rest:
+            per_child[head][rest] = value
+        else:
+            common[key] = value
+    configs = {}
+    for child in children:
+        overrides = {**shared, **common, **per_child[child], "scale": scale}
+        try:
+            cfg = load_experiment(child, overrides)
+        except ConfigError as e:
+            raise ConfigError(f"{exp} -> {child}: {e}") from None
+        if "scratch" not in cfg.variants or settings["transfer_preset"] not in cfg.variants:
+            raise ConfigError(f"{exp} -> {child}: the table compares 'scratch' with transfer_preset="
+                              f"{settings['transfer_preset']!r}; the variants are {list(cfg.variants)}")
+        configs[child] = cfg
+    return configs, settings
+
+
+def run_batch(exp: str, cli: Mapping[str, Any], show_progress: bool | None = None) -> dict[str, Any]:
+    """Run every experiment of the batch in turn and build its table. Returns the batch folder,
+    the table rows and each experiment's run result."""
+    from ptrl_jax.run import new_run_dir, run
+
+    configs, settings = batch_configs(exp, cli)
+    batch_dir = new_run_dir(ExperimentConfig(name=settings["name"], runs_dir=settings["runs_dir"]))
+    table_rows: list[dict[str, Any]] = []
+    results = {}
+    for child, cfg in configs.items():
+        result = run(cfg, run_dir=batch_dir / child, show_progress=show_progress)
+        results[child] = result
+        if result["interrupted"]:
+            break
+        table_rows += transfer_table.experiment_rows(
+            child, result["rows"], settings["transfer_preset"], cfg.report.threshold_fraction,
+            cfg.report.final_window)
+        write_table(batch_dir, settings, configs, table_rows)
+    return {"run_dir": batch_dir, "rows": table_rows, "results": results,
+            "interrupted": any(r["interrupted"] for r in results.values())}
+
+
+def write_table(batch_dir: Path, settings: Mapping[str, Any], configs: Mapping[str, ExperimentConfig],
+                rows: list[dict[str, Any]]) -> None:
+    name = settings["table"]
+    csv_rows = [{k: r.get(k, "") for k in transfer_table.FIELDS} for r in rows]
+    csv_rows.append({k: v for k, v in transfer_table.average_row(rows).items()})
+    artifacts.write_metrics_csv(batch_dir / f"{name}.csv", csv_rows)
+    any_cfg = next(iter(configs.values()))
+    notes = [
+        f"Scale {settings['scale']}: " + "; ".join(
+            f"{c}: source {cfg.source.robot} "
+            + ("from " + cfg.source_checkpoint if cfg.source_checkpoint else
+               f"{cfg.source.ppo.num_iterations} it x {cfg.source.ppo.env_steps_per_iteration} steps")
+            + f", targets {cfg.target.ppo.num_iterations} it x {cfg.target.ppo.env_steps_per_iteration} steps"
+            f", {cfg.seeds} seed(s)" for c, cfg in configs.items()),
+        f"Threshold: {any_cfg.report.threshold_fraction:g} x the scratch run's final reward (mean of the "
+        f"last {any_cfg.report.final_window} iterations, over seeds); time to threshold = env steps and "
+        f"target-stage wall time at the first iteration reaching it",
+        "Saved = 1 - transfer / scratch per seed (paired seeds), mean ± std over seeds where both reached it",
+        "Variants of one program run in lockstep under vmap and share a clock, so wall time saved equals "
+        "steps saved up to the spread of iteration times; freezing masks gradients, it does not skip them",
+        "Experiments: " + ", ".join(f"[{c}]({c}/report.md)" for c in configs),
+    ]
+    artifacts.atomic_write_text(batch_dir / f"{name}.md", transfer_table.format_markdown(rows, notes))

@@ -1,0 +1,112 @@
+"""Figures of evaluation rollouts (host-side only): velocity tracking (paper Fig. 6) and
+filmstrips of a robot's motion (paper Figs. 4, 8, 9).
+
+Both take the records of ``evaluate.rollout_mjx`` / ``rollout_mujoco`` (``velocity``,
+``command``, ``alive``, ``qpos``, ``dt`` and ``model``), so they work for either engine.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+# A command schedule like Fig. 6's: held segments that step forward speed, then add sideways
+# speed and a yaw rate. Each row is (vx, vy, yaw rate), held for an equal share of the rollout.
+FIG6_SCHEDULE = (
+    (0.3, 0.0, 0.0),
+    (0.6, 0.0, 0.0),
+    (0.9, 0.0, 0.0),
+    (0.5, 0.2, 0.0),
+    (0.5, 0.0, 0.4),
+    (0.0, 0.0, 0.0),
+)
+
+
+def schedule_commands(schedule, steps: int) -> np.ndarray:
+    """[steps, 3] commands: the schedule's rows held for equal shares of ``steps``."""
+    rows = np.asarray(schedule, np.float32)
+    if rows.ndim != 2 or rows.shape[1] != 3 or len(rows) == 0:
+        raise ValueError(f"a command schedule is a list of [vx, vy, yaw_rate] rows, got shape {rows.shape}")
+    segment = np.minimum((np.arange(steps) * len(rows)) // steps, len(rows) - 1)
+    return rows[segment]
+
+
+def plot_velocity_tracking(path: Path, rec: Mapping[str, Any], title: str) -> None:
+    """Three panels (vx, vy, yaw rate): commanded (dashed) against the base's actual velocity in
+    its heading frame, over time. A fall is marked and the curve stops there."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    alive = np.asarray(rec["alive"]).astype(bool)
+    t = np.arange(len(alive)) * rec["dt"]
+    vel = np.where(alive[:, None], np.asarray(rec["velocity"]), np.nan)
+    cmd = np.asarray(rec["command"])
+    fell = np.asarray(rec["fell"]).astype(bool)
+    labels = ("forward vx (m/s)", "sideways vy (m/s)", "yaw rate (rad/s)")
+    fig, axes = plt.subplots(3, 1, figsize=(8, 6.5), sharex=True)
+    for i, (ax, label) in enumerate(zip(axes, labels)):
+        ax.plot(t, cmd[:, i], "--", color="k", lw=1.2, label="commanded")
+        ax.plot(t, vel[:, i], color="tab:blue", lw=1.0, label="actual")
+        if fell.any():
+            ax.axvline(t[np.argmax(fell)], color="tab:red", lw=1, label="fall")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", ncol=3, fontsize=8)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def render_frames(rec: Mapping[str, Any], frames: int = 6, width: int = 320, height: int = 240) -> list[np.ndarray]:
+    """``frames`` RGB images evenly spaced over the rollout (up to a fall), from a side camera
+    that tracks the base. MuJoCo's offscreen renderer (``MUJOCO_GL=egl`` on headless machines)."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    import mujoco
+
+    if frames < 1:
+        raise ValueError(f"frames={frames}: must be >= 1")
+    model = rec["model"]
+    alive_steps = int(np.asarray(rec["alive"]).astype(bool).sum())
+    picks = np.linspace(0, max(alive_steps - 1, 0), frames).round().astype(int)
+    data = mujoco.MjData(model)
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+    cam.trackbodyid = 1
+    cam.distance = 1.5 * max(float(model.stat.extent), 0.5)
+    cam.azimuth, cam.elevation = 90.0, -12.0  # from the robot's left: the gait in profile
+    images = []
+    with mujoco.Renderer(model, height, width) as renderer:
+        for i in picks:
+            data.qpos[:] = np.asarray(rec["qpos"])[i]
+            mujoco.mj_forward(model, data)
+            renderer.update_scene(data, camera=cam)
+            images.append(renderer.render().copy())
+    return images
+
+
+def save_filmstrip(path: Path, rec: Mapping[str, Any], title: str, frames: int = 6) -> None:
+    """A row of rendered frames with their times (paper Figs. 4, 8, 9)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    images = render_frames(rec, frames)
+    alive_steps = int(np.asarray(rec["alive"]).astype(bool).sum())
+    times = np.linspace(0, max(alive_steps - 1, 0), frames).round() * rec["dt"]
+    fig, axes = plt.subplots(1, frames, figsize=(2.4 * frames, 2.2))
+    for ax, img, t in zip(np.atleast_1d(axes), images, times):
+        ax.imshow(img)
+        ax.set_title(f"t = {t:.1f} s", fontsize=9)
+        ax.axis("off")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

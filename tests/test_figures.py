@@ -1,0 +1,64 @@
+"""Fig. 6 (commanded vs actual velocity) and filmstrips (Figs. 4, 8, 9) from rollout records."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+from ptrl_jax.evaluate import parse_schedule, rollout_mjx
+from ptrl_jax.figures import FIG6_SCHEDULE, plot_velocity_tracking, render_frames, save_filmstrip, schedule_commands
+from ptrl_jax.overrides import ConfigError
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def records(steps=40, fall_at=None):
+    model = envs.LocomotionGymEnv("go2").model
+    qpos = np.tile(np.asarray(model.qpos0), (steps, 1))
+    qpos[:, 7:] += np.linspace(0, 0.6, steps)[:, None]  # joints sweep: the frames must differ
+    alive = np.ones(steps, bool)
+    fell = np.zeros(steps, bool)
+    if fall_at is not None:
+        fell[fall_at] = True
+        alive[fall_at + 1:] = False
+    cmd = schedule_commands(FIG6_SCHEDULE, steps)
+    return {"alive": alive, "fell": fell, "velocity": cmd + 0.05, "command": cmd, "qpos": qpos,
+            "dt": 0.02, "model": model}
+
+
+class TestSchedule:
+    def test_rows_hold_for_equal_shares(self):
+        rows = [[0.1, 0, 0], [0.2, 0, 0], [0.3, 0, 0.5]]
+        # step i takes row (3 i) // 7: 0 0 0 1 1 2 2
+        np.testing.assert_allclose(schedule_commands(rows, 7)[:, 0], [0.1, 0.1, 0.1, 0.2, 0.2, 0.3, 0.3])
+        assert schedule_commands(rows, 7)[-1, 2] == pytest.approx(0.5)
+
+    @pytest.mark.parametrize("text", ["[[0.3,0]]", "fast", "[]"])
+    def test_bad_schedules_are_refused(self, text):
+        with pytest.raises(ConfigError, match="schedule="):
+            parse_schedule(text)
+
+    def test_the_mjx_rollout_follows_the_schedule(self):
+        rows = ((0.2, 0.0, 0.0), (0.6, 0.1, -0.3))
+        actor = lambda obs: jnp.zeros(12)  # noqa: E731
+        rec = rollout_mjx("go2", envs.default_config("go2"), actor, (0.0, 0.0, 0.0), 0.2, schedule=rows)
+        np.testing.assert_allclose(rec["command"], schedule_commands(rows, 10), atol=1e-7)
+
+
+class TestFigures:
+    def test_velocity_tracking_png(self, tmp_path):
+        plot_velocity_tracking(tmp_path / "v.png", records(fall_at=30), "go2")
+        assert (tmp_path / "v.png").read_bytes()[:8] == PNG
+
+    def test_frames_show_the_motion_up_to_a_fall(self):
+        rec = records(fall_at=19)
+        frames = render_frames(rec, frames=3, width=96, height=72)
+        assert [f.shape for f in frames] == [(72, 96, 3)] * 3
+        assert not np.array_equal(frames[0], frames[-1])  # the legs moved
+        # The last frame is the last step alive (19), not the end of the rollout.
+        later = render_frames({**rec, "alive": np.ones(40, bool)}, frames=3, width=96, height=72)
+        assert not np.array_equal(frames[-1], later[-1])
+
+    def test_filmstrip_png(self, tmp_path):
+        save_filmstrip(tmp_path / "f.png", records(), "go2", frames=4)
+        assert (tmp_path / "f.png").read_bytes()[:8] == PNG

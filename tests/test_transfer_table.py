@@ -1,0 +1,126 @@
+"""Table IV: time to threshold with transfer and from scratch, by hand; the batch runner."""
+
+import math
+
+import numpy as np
+import pytest
+
+from ptrl_jax import artifacts, transfer_table
+from ptrl_jax.batch import batch_configs, run_batch
+from ptrl_jax.overrides import ConfigError, load_experiment
+
+STEPS = [100, 200, 300, 400, 500]
+WALL = [1.0, 2.0, 3.0, 4.0, 5.0]
+
+
+def rows_of(curves: dict) -> list[dict]:
+    """metrics.csv-like target rows: {(preset, seed): rewards per iteration}."""
+    out = []
+    for (preset, seed), rewards in curves.items():
+        for i, r in enumerate(rewards):
+            out.append({"stage": "target", "robot": "xbot_l", "preset": preset, "seed": seed, "iteration": i,
+                        "env_steps": STEPS[i], "wall_time_s": WALL[i], "episode_reward": r})
+    return [{"stage": "source", "robot": "go2", "preset": "source", "seed": 0, "iteration": 0,
+             "env_steps": 100, "wall_time_s": 1.0, "episode_reward": 0.0}] + out
+
+
+class TestRobotRow:
+    # Scratch finals over the last 2 iterations: seed 0 (3+4)/2 = 3.5, seed 1 (3+5)/2 = 4; mean 3.75.
+    # Threshold 0.8 x 3.75 = 3.0. Scratch reaches it at iteration 3 (seed 0) and 3 (seed 1);
+    # L2 at iteration 2 (seed 0) and 1 (seed 1).
+    CURVES = {
+        ("scratch", 0): [0, 1, 2, 3, 4], ("scratch", 1): [0, 1, 2, 3, 5],
+        ("L2", 0): [0, 2, 3, 4, 4], ("L2", 1): [1, 3, 3, 3, 3],
+    }
+
+    def row(self, curves=None):
+        (row,) = transfer_table.experiment_rows("go2_to_xbot", rows_of(curves or self.CURVES), "L2", 0.8, 2)
+        return row
+
+    def test_threshold_and_steps(self):
+        row = self.row()
+        assert (row["source"], row["target"], row["seeds"]) == ("go2", "xbot_l", 2)
+        assert row["threshold"] == pytest.approx(3.0)
+        assert row["scratch_steps_mean"] == 400 and row["scratch_steps_std"] == 0
+        assert row["transfer_steps_mean"] == 250 and row["transfer_steps_std"] == 50  # 300 and 200
+        assert row["scratch_wall_s_mean"] == 4.0 and row["transfer_wall_s_mean"] == 2.5
+
+    def test_saving_is_per_paired_seed(self):
+        row = self.row()
+        # seed 0: 1 - 300/400 = 0.25; seed 1: 1 - 200/400 = 0.5.
+        assert row["steps_saved_mean"] == pytest.approx(0.375) and row["steps_saved_std"] == pytest.approx(0.125)
+        assert row["wall_saved_mean"] == pytest.approx(0.375)
+        assert row["seeds_both_reached"] == 2
+
+    def test_a_seed_that_never_reaches_is_left_out_and_counted(self):
+        curves = dict(self.CURVES)
+        curves[("L2", 1)] = [0, 0, 0, 0, 0]
+        row = self.row(curves)
+        assert row["seeds_both_reached"] == 1 and row["steps_saved_mean"] == pytest.approx(0.25)
+        assert "not reached" not in transfer_table.format_markdown([row])
+
+    def test_no_seed_reaching_reads_not_reached(self):
+        curves = {**self.CURVES, ("L2", 0): [0] * 5, ("L2", 1): [0] * 5}
+        row = self.row(curves)
+        assert math.isnan(row["steps_saved_mean"]) and row["seeds_both_reached"] == 0
+        assert "not reached" in transfer_table.format_markdown([row])
+
+    def test_missing_scratch_is_refused(self):
+        curves = {k: v for k, v in self.CURVES.items() if k[0] != "scratch"}
+        with pytest.raises(ValueError, match="scratch"):
+            self.row(curves)
+
+    def test_average_counts_each_robot_once(self):
+        a = {"steps_saved_mean": 0.1, "wall_saved_mean": 0.2}
+        b = {"steps_saved_mean": 0.3, "wall_saved_mean": float("nan")}
+        avg = transfer_table.average_row([a, b])
+        assert avg["steps_saved_mean"] == pytest.approx(0.2) and avg["wall_saved_mean"] == pytest.approx(0.2)
+
+
+class TestBatchConfigs:
+    @pytest.mark.parametrize("scale", ["smoke", "cpu", "paper"])
+    def test_table4_resolves_at_every_scale(self, scale):
+        configs, settings = batch_configs("table4", {"scale": scale})
+        assert list(configs) == ["go2_to_xbot", "xbot_to_all"] and settings["transfer_preset"] == "L2"
+        for cfg in configs.values():
+            assert cfg.scale == scale and {"L2", "scratch"} <= set(cfg.variants)
+        robots = [r for cfg in configs.values() for r in cfg.targets]
+        assert len(robots) == 8 == len(set(robots))  # every robot of the paper is a target once
+
+    def test_prefixed_keys_go_to_one_experiment(self):
+        configs, _ = batch_configs("table4", {"scale": "smoke", "seeds": "3", "xbot_to_all.target.ppo.num_envs": "8"})
+        assert configs["go2_to_xbot"].seeds == configs["xbot_to_all"].seeds == 3
+        assert configs["xbot_to_all"].target.ppo.num_envs == 8
+        assert configs["go2_to_xbot"].target.ppo.num_envs == 16
+
+    @pytest.mark.parametrize("cli,message", [
+        ({"xbot_to_all.target.ppo.num_env": "8"}, "xbot_to_all: .*did you mean 'target.ppo.num_envs'"),
+        ({"freeze_presets": "[L1]"}, "compares 'scratch'"),
+        ({"scale": "huge"}, "scale must be one of"),
+    ])
+    def test_bad_input_is_refused_before_anything_runs(self, cli, message, tmp_path):
+        with pytest.raises(ConfigError, match=message):
+            run_batch("table4", {**cli, "runs_dir": str(tmp_path)})
+        assert not any(tmp_path.iterdir())
+
+    def test_a_batch_is_not_an_experiment(self):
+        with pytest.raises(ConfigError, match="batch of experiments"):
+            load_experiment("table4")
+
+
+@pytest.mark.xdist_group("smoke_go2_to_xbot")  # reuses the smoke program compiled for test_end_to_end
+class TestBatchRun:
+    def test_writes_the_table_from_its_runs(self, tmp_path):
+        spec = tmp_path / "one.yaml"
+        spec.write_text("batch: [go2_to_xbot]\ntransfer_preset: L1\n")
+        result = run_batch(str(spec), {"scale": "smoke", "runs_dir": str(tmp_path / "runs")})
+        batch_dir = result["run_dir"]
+        assert (batch_dir / "go2_to_xbot" / "report.md").is_file()
+        table = artifacts.read_metrics_csv(batch_dir / "table4.csv")
+        assert [r["experiment"] for r in table] == ["go2_to_xbot", "average"]
+        metrics = artifacts.read_metrics_csv(batch_dir / "go2_to_xbot" / "metrics.csv")
+        scratch_final = np.mean([np.mean([r["episode_reward"] for r in metrics if r["preset"] == "scratch"
+                                          and r["seed"] == s][-10:]) for s in range(2)])
+        assert table[0]["threshold"] == pytest.approx(0.9 * scratch_final, abs=1e-5)
+        assert table[0]["transfer_preset"] == "L1"
+        assert "go2 -> xbot_l | L1 | 2 |" in (batch_dir / "table4.md").read_text()
