@@ -68,7 +68,10 @@ def mjx_state_like(gym_env):
 
 
 # One robot per family and foot type (a single-env MJX step costs about a minute to compile).
-@pytest.mark.parametrize("robot", ["go2", "xbot_l"])
+# XBot-L's is marked slow (left out of the default run, `pytest -m slow` runs it) to keep the
+# suite within 15 minutes; Go2's stays in, and XBot-L's sim-to-sim path is also exercised by
+# `evaluate sim=mujoco`.
+@pytest.mark.parametrize("robot", ["go2", pytest.param("xbot_l", marks=pytest.mark.slow)])
 class TestSimToSimAgreement:
     """MJX (float32) and MuJoCo C (float64) step the same model with the same solver settings.
     Over the first 10 control steps of an open-loop action sequence they agree within these

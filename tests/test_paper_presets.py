@@ -6,6 +6,7 @@ tests (test_end_to_end.py)."""
 
 import csv
 
+import jax
 import numpy as np
 import pytest
 
@@ -33,7 +34,9 @@ def check_transfer(run_dir, target_file_prefix, target_robot):
         assert np.array_equal(both["params"]["actor"][layer]["w"], src[layer]["w"]), (target_robot, layer)
         assert not np.array_equal(scratch[layer]["w"], src[layer]["w"]), (target_robot, layer)
     env = envs.make(target_robot)
-    assert both["params"]["actor"]["layer_0"]["w"].shape[0] == env.observation_size["state"][0]
+    # eval_shape, not brax's observation_size: that runs a reset eagerly, op by op (~20 s each).
+    obs_size = jax.eval_shape(env.reset, jax.random.PRNGKey(0)).obs["state"].shape[0]
+    assert both["params"]["actor"]["layer_0"]["w"].shape[0] == obs_size
     assert both["params"]["actor"]["layer_3"]["w"].shape[1] == env.action_size
     assert both["meta"]["robot"] == target_robot
 
