@@ -4,7 +4,7 @@
     python -m ptrl_jax.evaluate ckpt=... sim=mujoco        # MJX and MuJoCo C, side by side
     python -m ptrl_jax.evaluate ckpt=... mcap=rollout.mcap # also write the rollout for Foxglove
     python -m ptrl_jax.evaluate ckpt=... schedule=fig6 plot=tracking.png   # paper Fig. 6
-    python -m ptrl_jax.evaluate ckpt=... filmstrip=go2.png                 # paper Figs. 4, 8, 9
+    python -m ptrl_jax.evaluate ckpt=... filmstrip=go2.png filmstrip_span=1.2   # Figs. 4, 8, 9
 
 The policy's mean action is applied (no sampling), the command is held fixed, and the episode
 time limit is lifted, so the rollout ends only by a fall or after ``seconds``. ``sim=mjx`` (the
@@ -171,6 +171,7 @@ def evaluate_policy(
     schedule=None,
     plot_path: str | None = None,
     filmstrip_path: str | None = None,
+    filmstrip_span_s: float | None = None,
 ) -> dict[str, Any]:
     """Roll out one env for ``seconds`` under a fixed command (or a ``schedule`` of commands,
     MJX only); report tracking and falls. Optionally write the rollout as MCAP, the velocity
@@ -194,7 +195,7 @@ def evaluate_policy(
     if filmstrip_path is not None:
         from ptrl_jax.figures import save_filmstrip
 
-        save_filmstrip(filmstrip_path, rec, title)
+        save_filmstrip(filmstrip_path, rec, title, span_s=filmstrip_span_s)
     result = summarize(rec, robot, command, seconds, sim)
     if schedule is not None:
         # Per-step tracking against the commands actually given (the fixed-command fields above
@@ -255,7 +256,8 @@ def type_stats(d: Mapping[str, Any]):
     return RunningStats(mean=jnp.asarray(d["mean"]), m2=jnp.asarray(d["m2"]), count=jnp.asarray(d["count"]))
 
 
-KNOWN_ARGS = ("ckpt", "vx", "vy", "yaw", "seconds", "sim", "seed", "mcap", "plot", "filmstrip", "schedule")
+KNOWN_ARGS = ("ckpt", "vx", "vy", "yaw", "seconds", "sim", "seed", "mcap", "plot", "filmstrip", "filmstrip_span",
+              "schedule")
 
 
 def parse_schedule(text: str):
@@ -290,6 +292,9 @@ def main(argv: list[str] | None = None) -> int:
         if seconds <= 0:
             raise ConfigError(f"seconds={seconds}: must be > 0")
         schedule = parse_schedule(args["schedule"]) if "schedule" in args else None
+        span = float(args["filmstrip_span"]) if "filmstrip_span" in args else None
+        if span is not None and span <= 0:
+            raise ConfigError(f"filmstrip_span={span}: must be > 0 (seconds before the rollout's end or fall)")
         if schedule is not None and sim != "mjx":
             raise ConfigError("schedule=... needs sim=mjx (the MuJoCo C env holds one command)")
         for key in ("plot", "filmstrip", "mcap"):
@@ -303,7 +308,8 @@ def main(argv: list[str] | None = None) -> int:
                   normalizer=policy["normalizer"], network=policy["network"], command=command,
                   seconds=seconds, seed=seed, normalize_observations=policy["normalize_observations"])
     results = [evaluate_policy(**common, sim="mjx", mcap_path=args.get("mcap") if sim == "mjx" else None,
-                               schedule=schedule, plot_path=args.get("plot"), filmstrip_path=args.get("filmstrip"))]
+                               schedule=schedule, plot_path=args.get("plot"), filmstrip_path=args.get("filmstrip"),
+                               filmstrip_span_s=span)]
     if sim == "mujoco":
         results.append(evaluate_policy(**common, sim="mujoco", mcap_path=args.get("mcap")))
         print(format_side_by_side(results))

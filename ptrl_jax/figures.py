@@ -64,17 +64,25 @@ def plot_velocity_tracking(path: Path, rec: Mapping[str, Any], title: str) -> No
     plt.close(fig)
 
 
-def render_frames(rec: Mapping[str, Any], frames: int = 6, width: int = 320, height: int = 240) -> list[np.ndarray]:
-    """``frames`` RGB images evenly spaced over the rollout (up to a fall), from a side camera
-    that tracks the base. MuJoCo's offscreen renderer (``MUJOCO_GL=egl`` on headless machines)."""
+def frame_steps(rec: Mapping[str, Any], frames: int, span_s: float | None = None) -> np.ndarray:
+    """The steps to draw: ``frames`` evenly spaced over the rollout up to a fall, or over its
+    last ``span_s`` seconds (a gait cycle or two of steady walking, or the fall itself)."""
+    if frames < 1:
+        raise ValueError(f"frames={frames}: must be >= 1")
+    last = max(int(np.asarray(rec["alive"]).astype(bool).sum()) - 1, 0)
+    first = 0 if span_s is None else max(last - int(round(span_s / rec["dt"])), 0)
+    return np.linspace(first, last, frames).round().astype(int)
+
+
+def render_frames(rec: Mapping[str, Any], frames: int = 6, width: int = 320, height: int = 240,
+                  span_s: float | None = None) -> list[np.ndarray]:
+    """RGB images at ``frame_steps``, from a side camera that tracks the base. MuJoCo's
+    offscreen renderer (``MUJOCO_GL=egl`` on headless machines)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
 
-    if frames < 1:
-        raise ValueError(f"frames={frames}: must be >= 1")
     model = rec["model"]
-    alive_steps = int(np.asarray(rec["alive"]).astype(bool).sum())
-    picks = np.linspace(0, max(alive_steps - 1, 0), frames).round().astype(int)
+    picks = frame_steps(rec, frames, span_s)
     data = mujoco.MjData(model)
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
@@ -91,16 +99,16 @@ def render_frames(rec: Mapping[str, Any], frames: int = 6, width: int = 320, hei
     return images
 
 
-def save_filmstrip(path: Path, rec: Mapping[str, Any], title: str, frames: int = 6) -> None:
+def save_filmstrip(path: Path, rec: Mapping[str, Any], title: str, frames: int = 6,
+                   span_s: float | None = None) -> None:
     """A row of rendered frames with their times (paper Figs. 4, 8, 9)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    images = render_frames(rec, frames)
-    alive_steps = int(np.asarray(rec["alive"]).astype(bool).sum())
-    times = np.linspace(0, max(alive_steps - 1, 0), frames).round() * rec["dt"]
+    images = render_frames(rec, frames, span_s=span_s)
+    times = frame_steps(rec, frames, span_s) * rec["dt"]
     fig, axes = plt.subplots(1, frames, figsize=(2.4 * frames, 2.2))
     for ax, img, t in zip(np.atleast_1d(axes), images, times):
         ax.imshow(img)

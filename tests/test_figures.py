@@ -6,7 +6,8 @@ import pytest
 
 import envs
 from ptrl_jax.evaluate import parse_schedule, rollout_mjx
-from ptrl_jax.figures import FIG6_SCHEDULE, plot_velocity_tracking, render_frames, save_filmstrip, schedule_commands
+from ptrl_jax.figures import (FIG6_SCHEDULE, frame_steps, plot_velocity_tracking, render_frames, save_filmstrip,
+                              schedule_commands)
 from ptrl_jax.overrides import ConfigError
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -58,6 +59,12 @@ class TestFigures:
         # The last frame is the last step alive (19), not the end of the rollout.
         later = render_frames({**rec, "alive": np.ones(40, bool)}, frames=3, width=96, height=72)
         assert not np.array_equal(frames[-1], later[-1])
+
+    def test_a_span_draws_the_last_seconds_before_the_end(self):
+        rec = records(steps=40, fall_at=29)  # alive through step 29; dt 0.02
+        np.testing.assert_array_equal(frame_steps(rec, 3), [0, 14, 29])
+        np.testing.assert_array_equal(frame_steps(rec, 3, span_s=0.2), [19, 24, 29])  # 10 steps back
+        np.testing.assert_array_equal(frame_steps(rec, 2, span_s=5.0), [0, 29])  # clipped at the start
 
     def test_filmstrip_png(self, tmp_path):
         save_filmstrip(tmp_path / "f.png", records(), "go2", frames=4)
