@@ -9,6 +9,11 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 
+def fmt_number(v: Any, fmt: str = "{:.3f}") -> str:
+    """A number for a markdown table; None and NaN read 'n/a'."""
+    return "n/a" if v is None or (isinstance(v, float) and not np.isfinite(v)) else fmt.format(v)
+
+
 def curves_by_preset(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, np.ndarray]]:
     """{preset: {"env_steps": [T], "wall_time_s": [T], "reward": [seeds, T]}} for target rows."""
     grouped: dict[str, dict[int, list]] = defaultdict(lambda: defaultdict(list))
@@ -106,17 +111,14 @@ def plot_freeze_ratio(path: Path, rows: Sequence[Mapping[str, Any]], scratch: Ma
 
 
 def format_ratio_table(rows: Sequence[Mapping[str, Any]], png: str) -> str:
-    def f(v, fmt="{:.3f}"):
-        return "n/a" if v is None or (isinstance(v, float) and np.isnan(v)) else fmt.format(v)
-
     lines = ["## Freeze ratio", "", f"![freeze ratio]({png})", "",
              "| rho | final reward (mean ± std) | AUC (mean ± std) | env steps to threshold (mean ± std) | seeds reaching |",
              "|---|---|---|---|---|"]
     for r in rows:
         lines.append(
-            f"| {r['rho']:g} | {f(r['final_reward_mean'])} ± {f(r['final_reward_std'])} | "
-            f"{f(r['auc_mean'])} ± {f(r['auc_std'])} | {f(r['steps_to_threshold_mean'], '{:.0f}')} ± "
-            f"{f(r['steps_to_threshold_std'], '{:.0f}')} | {r['seeds_reaching_threshold']}/{r['seeds']} |"
+            f"| {r['rho']:g} | {fmt_number(r['final_reward_mean'])} ± {fmt_number(r['final_reward_std'])} | "
+            f"{fmt_number(r['auc_mean'])} ± {fmt_number(r['auc_std'])} | {fmt_number(r['steps_to_threshold_mean'], '{:.0f}')} ± "
+            f"{fmt_number(r['steps_to_threshold_std'], '{:.0f}')} | {r['seeds_reaching_threshold']}/{r['seeds']} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -157,21 +159,18 @@ def plot_curves(
 def format_report(
     title: str, summary: Sequence[Mapping[str, Any]], threshold: float | None, notes: Sequence[str]
 ) -> str:
-    def f(v, fmt="{:.3f}"):
-        return "n/a" if v is None or (isinstance(v, float) and np.isnan(v)) else fmt.format(v)
-
     lines = [f"# {title}", ""]
     lines += [f"- {n}" for n in notes]
     lines += [
-        f"- Threshold for 'time to threshold': {f(threshold)} (episode reward)",
+        f"- Threshold for 'time to threshold': {fmt_number(threshold)} (episode reward)",
         "",
         "| preset | seeds | final reward (mean ± std) | AUC (mean ± std) | env steps to threshold | wall s to threshold | seeds reaching |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in summary:
         lines.append(
-            f"| {r['preset']} | {r['seeds']} | {f(r['final_reward_mean'])} ± {f(r['final_reward_std'])} | "
-            f"{f(r['auc_mean'])} ± {f(r['auc_std'])} | {f(r['steps_to_threshold_mean'], '{:.0f}')} | "
-            f"{f(r['wall_s_to_threshold_mean'], '{:.1f}')} | {r['seeds_reaching_threshold']}/{r['seeds']} |"
+            f"| {r['preset']} | {r['seeds']} | {fmt_number(r['final_reward_mean'])} ± {fmt_number(r['final_reward_std'])} | "
+            f"{fmt_number(r['auc_mean'])} ± {fmt_number(r['auc_std'])} | {fmt_number(r['steps_to_threshold_mean'], '{:.0f}')} | "
+            f"{fmt_number(r['wall_s_to_threshold_mean'], '{:.1f}')} | {r['seeds_reaching_threshold']}/{r['seeds']} |"
         )
     return "\n".join(lines) + "\n"

@@ -23,7 +23,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ptrl_jax.summary import curves_by_preset
+from ptrl_jax.summary import curves_by_preset, fmt_number
 
 PAPER_AVERAGE_SAVING = 0.20
 """Paper Table IV: training with transfer took about 20 % less time on average (Isaac Gym,
@@ -111,7 +111,7 @@ def average_row(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 
 def format_markdown(rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = ()) -> str:
     def f(v, fmt="{:.0f}"):
-        return "n/a" if v is None or (isinstance(v, float) and not np.isfinite(v)) else fmt.format(v)
+        return fmt_number(v, fmt)
 
     def pct(m, s):
         return "not reached" if not np.isfinite(m) else f"{100 * m:+.1f} % ± {100 * s:.1f}"
