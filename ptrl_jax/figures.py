@@ -37,10 +37,7 @@ def schedule_commands(schedule, steps: int) -> np.ndarray:
 def plot_velocity_tracking(path: Path, rec: Mapping[str, Any], title: str) -> None:
     """Three panels (vx, vy, yaw rate): commanded (dashed) against the base's actual velocity in
     its heading frame, over time. A fall is marked and the curve stops there."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
     alive = np.asarray(rec["alive"]).astype(bool)
     t = np.arange(len(alive)) * rec["dt"]
@@ -48,7 +45,8 @@ def plot_velocity_tracking(path: Path, rec: Mapping[str, Any], title: str) -> No
     cmd = np.asarray(rec["command"])
     fell = np.asarray(rec["fell"]).astype(bool)
     labels = ("forward vx (m/s)", "sideways vy (m/s)", "yaw rate (rad/s)")
-    fig, axes = plt.subplots(3, 1, figsize=(8, 6.5), sharex=True)
+    fig = Figure(figsize=(8, 6.5))
+    axes = fig.subplots(3, 1, sharex=True)
     for i, (ax, label) in enumerate(zip(axes, labels)):
         ax.plot(t, cmd[:, i], "--", color="k", lw=1.2, label="commanded")
         ax.plot(t, vel[:, i], color="tab:blue", lw=1.0, label="actual")
@@ -61,7 +59,6 @@ def plot_velocity_tracking(path: Path, rec: Mapping[str, Any], title: str) -> No
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def frame_steps(rec: Mapping[str, Any], frames: int, span_s: float | None = None) -> np.ndarray:
@@ -102,14 +99,12 @@ def render_frames(rec: Mapping[str, Any], frames: int = 6, width: int = 320, hei
 def save_filmstrip(path: Path, rec: Mapping[str, Any], title: str, frames: int = 6,
                    span_s: float | None = None) -> None:
     """A row of rendered frames with their times (paper Figs. 4, 8, 9)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
     images = render_frames(rec, frames, span_s=span_s)
     times = frame_steps(rec, frames, span_s) * rec["dt"]
-    fig, axes = plt.subplots(1, frames, figsize=(2.4 * frames, 2.2))
+    fig = Figure(figsize=(2.4 * frames, 2.2))
+    axes = fig.subplots(1, frames)
     for ax, img, t in zip(np.atleast_1d(axes), images, times):
         ax.imshow(img)
         ax.set_title(f"t = {t:.1f} s", fontsize=9)
@@ -117,4 +112,3 @@ def save_filmstrip(path: Path, rec: Mapping[str, Any], title: str, frames: int =
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)

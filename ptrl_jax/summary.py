@@ -85,15 +85,13 @@ def plot_freeze_ratio(path: Path, rows: Sequence[Mapping[str, Any]], scratch: Ma
                       title: str) -> None:
     """Final reward, AUC and env steps to threshold against the freeze ratio rho (mean and std
     over seeds); the scratch baseline as a dashed line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
     rho = np.array([r["rho"] for r in rows])
     panels = [("final_reward", "final episode reward"), ("auc", "AUC (mean reward over training)"),
               ("steps_to_threshold", "env steps to threshold")]
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    fig = Figure(figsize=(13, 3.8))
+    axes = fig.subplots(1, 3)
     for ax, (key, label) in zip(axes, panels):
         mean = np.array([np.nan if r[f"{key}_mean"] is None else r[f"{key}_mean"] for r in rows], float)
         std = np.array([np.nan if r[f"{key}_std"] is None else r[f"{key}_std"] for r in rows], float)
@@ -107,7 +105,6 @@ def plot_freeze_ratio(path: Path, rows: Sequence[Mapping[str, Any]], scratch: Ma
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def format_ratio_table(rows: Sequence[Mapping[str, Any]], png: str) -> str:
@@ -127,12 +124,10 @@ def plot_curves(
     path: Path, curves: Mapping[str, Mapping[str, np.ndarray]], title: str, source_curve=()
 ) -> None:
     """Target reward per preset (mean and spread over seeds), and the source curve beside it."""
-    import matplotlib
+    from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax_src, ax) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1, 1.6]})
+    fig = Figure(figsize=(11, 4.2))
+    ax_src, ax = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.6]})
     if source_curve:
         xs, ys = zip(*source_curve)
         ax_src.plot(np.array(xs) / 1e6, ys, color="k")
@@ -153,7 +148,6 @@ def plot_curves(
     ax.legend(title="freeze preset")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def format_report(
