@@ -23,7 +23,7 @@ class TestOverrides:
         only_ratios = load_experiment("go2_to_xbot", ["freeze_presets=[]", "freeze_ratio=[0.5]"])
         assert only_ratios.variants == ("rho0.5",)
         with pytest.raises(ConfigError, match="both empty"):
-            load_experiment("go2_to_xbot", ["freeze_presets=[]"])
+            load_experiment("go2_to_xbot", ["freeze_presets=[]", "freeze_ratio=[]"])
 
     @pytest.mark.parametrize("arg,message", [
         ("ppo.learning_rate=1e-3", "did you mean '(source|target).ppo.learning_rate'"),
