@@ -1,5 +1,6 @@
 """Table IV: time to threshold with transfer and from scratch, by hand; the batch runner."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -108,13 +109,32 @@ class TestBatchConfigs:
             load_experiment("table4")
 
 
-@pytest.mark.xdist_group("smoke_go2_to_xbot")  # reuses the smoke program compiled for test_end_to_end
+@pytest.mark.xdist_group("smoke_go2_to_xbot")  # uses the smoke run of test_end_to_end
 class TestBatchRun:
-    def test_writes_the_table_from_its_runs(self, tmp_path):
+    def test_writes_the_table_from_its_runs(self, tmp_path, smoke_run, monkeypatch):
+        """The batch's own logic: it runs each experiment into its folder and builds the table
+        from that run's rows. The run itself is the shared smoke run (copied), not a new one:
+        run() has its own tests, and a smoke run costs half a minute of the suite."""
+        import shutil
+
+        from ptrl_jax import run as run_cli
+
+        reference_cfg, reference_dir = smoke_run
+        calls = []
+
+        def fake_run(cfg, run_dir, show_progress=None):
+            calls.append((cfg, run_dir))
+            shutil.copytree(reference_dir, run_dir)
+            return {"run_dir": run_dir, "interrupted": False,
+                    "rows": artifacts.read_metrics_csv(run_dir / "metrics.csv")}
+
+        monkeypatch.setattr(run_cli, "run", fake_run)
         spec = tmp_path / "one.yaml"
         spec.write_text("batch: [go2_to_xbot]\ntransfer_preset: L1\n")
         result = run_batch(str(spec), {"scale": "smoke", "runs_dir": str(tmp_path / "runs")})
         batch_dir = result["run_dir"]
+        ((cfg, run_dir),) = calls
+        assert run_dir == batch_dir / "go2_to_xbot" and cfg == dataclasses.replace(reference_cfg, runs_dir=cfg.runs_dir)
         assert (batch_dir / "go2_to_xbot" / "report.md").is_file()
         table = artifacts.read_metrics_csv(batch_dir / "table4.csv")
         assert [r["experiment"] for r in table] == ["go2_to_xbot", "average"]
