@@ -7,7 +7,7 @@ a normal run in ``runs/table4/<stamp>/<experiment>/`` and writes ``table4.csv`` 
 ``table4.md`` beside them, rewritten after each experiment so a later failure loses nothing.
 
 Command-line keys apply to every experiment of the batch, and ``<experiment>.<key>=value`` to
-that one only (``go2_to_xbot.source_checkpoint=runs/.../source.npz``). Every experiment's config
+that one only; ``batch=[a,b]`` replaces the list of experiments (``go2_to_xbot.source_checkpoint=runs/.../source.npz``). Every experiment's config
 is built and validated before the first one starts.
 """
 
@@ -33,10 +33,13 @@ def batch_configs(exp: str, cli: Mapping[str, Any]) -> tuple[dict[str, Experimen
     unknown = sorted(set(spec) - set(BATCH_KEYS))
     if unknown:
         raise ConfigError(f"batch preset {exp}: unknown key(s) {unknown}; a batch has {list(BATCH_KEYS)}")
-    children = list(spec["batch"] or [])
+    cli = dict(cli)
+    children = cli.pop("batch", spec["batch"])  # batch=[a,b] on the command line runs a subset
+    if isinstance(children, str):
+        children = [c.strip() for c in children.strip("[]").split(",") if c.strip()]
+    children = list(children or [])
     if not children:
         raise ConfigError(f"batch preset {exp}: 'batch' lists no experiments")
-    cli = dict(cli)
     scale = str(cli.pop("scale", "cpu"))
     if scale not in SCALES:
         raise ConfigError(f"scale must be one of {SCALES}, got {scale!r}")

@@ -88,6 +88,12 @@ class TestBatchConfigs:
         robots = [r for cfg in configs.values() for r in cfg.targets]
         assert len(robots) == 8 == len(set(robots))  # every robot of the paper is a target once
 
+    def test_the_command_line_can_name_the_experiments(self):
+        configs, _ = batch_configs("table4", {"scale": "smoke", "batch": "[xbot_to_go2,mit_to_xbot]"})
+        assert list(configs) == ["xbot_to_go2", "mit_to_xbot"]
+        with pytest.raises(ConfigError, match="unknown experiment 'xbot_to_dog'"):
+            batch_configs("table4", {"batch": "[xbot_to_dog]"})
+
     def test_prefixed_keys_go_to_one_experiment(self):
         configs, _ = batch_configs("table4", {"scale": "smoke", "seeds": "3", "xbot_to_all.target.ppo.num_envs": "8"})
         assert configs["go2_to_xbot"].seeds == configs["xbot_to_all"].seeds == 3
