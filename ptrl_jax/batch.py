@@ -85,7 +85,7 @@ def run_batch(exp: str, cli: Mapping[str, Any], show_progress: bool | None = Non
             break
         table_rows += transfer_table.experiment_rows(
             child, result["rows"], settings["transfer_preset"], cfg.report.threshold_fraction,
-            cfg.report.final_window)
+            cfg.report.final_window, source=cfg.source.robot)
         write_table(batch_dir, settings, configs, table_rows)
     return {"run_dir": batch_dir, "rows": table_rows, "results": results,
             "interrupted": any(r["interrupted"] for r in results.values())}

@@ -90,10 +90,11 @@ def robot_row(
 
 def experiment_rows(
     experiment: str, metrics: Sequence[Mapping[str, Any]], transfer_preset: str,
-    threshold_fraction: float, final_window: int,
+    threshold_fraction: float, final_window: int, source: str | None = None,
 ) -> list[dict[str, Any]]:
-    """Table IV rows of one experiment's metrics.csv rows: one per target robot."""
-    source = next((str(r["robot"]) for r in metrics if r["stage"] == "source"), "?")
+    """Table IV rows of one experiment's metrics.csv rows: one per target robot. ``source``
+    names the source robot where the rows have no source stage (a ``source_checkpoint`` run)."""
+    source = source or next((str(r["robot"]) for r in metrics if r["stage"] == "source"), "?")
     targets = list(dict.fromkeys(str(r["robot"]) for r in metrics if r["stage"] == "target"))
     return [robot_row(experiment, source, robot, [r for r in metrics if r["stage"] == "target" and r["robot"] == robot],
                       transfer_preset, threshold_fraction, final_window) for robot in targets]

@@ -66,6 +66,11 @@ class TestRobotRow:
         assert math.isnan(row["steps_saved_mean"]) and row["seeds_both_reached"] == 0
         assert "not reached" in transfer_table.format_markdown([row])
 
+    def test_a_run_from_a_source_checkpoint_names_its_source(self):
+        rows = [r for r in rows_of(self.CURVES) if r["stage"] == "target"]  # no source stage
+        (row,) = transfer_table.experiment_rows("go2_to_xbot", rows, "L2", 0.8, 2, source="go2")
+        assert row["source"] == "go2"
+
     def test_missing_scratch_is_refused(self):
         curves = {k: v for k, v in self.CURVES.items() if k[0] != "scratch"}
         with pytest.raises(ValueError, match="scratch"):
