@@ -70,14 +70,19 @@ def preset_summary(
 
 
 def ratio_table(summary: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """The freeze-ratio variants (``rho<r>``) of a preset summary, with ``rho``, sorted by it."""
+    """The freeze-ratio variants (``rho<r>``) of a preset summary, with ``rho``, sorted by it.
+    The presets 'none' and 'L1+L2' are the ends rho = 0 and rho = 1 (the same masks), and stand
+    in for them when the sweep does not list them itself. Empty without any ``rho<r>`` variant."""
     from ptrl_jax.freeze import RATIO_PREFIX
 
-    rows = []
-    for r in summary:
-        name = r["preset"]
-        if name.startswith(RATIO_PREFIX):
-            rows.append({**r, "rho": float(name[len(RATIO_PREFIX):])})
+    rows = [{**r, "rho": float(r["preset"][len(RATIO_PREFIX):])} for r in summary
+            if r["preset"].startswith(RATIO_PREFIX)]
+    if not rows:
+        return []
+    for rho, preset in ((0.0, "none"), (1.0, "L1+L2")):
+        end = next((r for r in summary if r["preset"] == preset), None)
+        if end is not None and all(r["rho"] != rho for r in rows):
+            rows.append({**end, "rho": rho})
     return sorted(rows, key=lambda r: r["rho"])
 
 
@@ -113,7 +118,7 @@ def format_ratio_table(rows: Sequence[Mapping[str, Any]], png: str) -> str:
              "|---|---|---|---|---|"]
     for r in rows:
         lines.append(
-            f"| {r['rho']:g} | {fmt_number(r['final_reward_mean'])} ± {fmt_number(r['final_reward_std'])} | "
+            f"| {r['rho']:g}{'' if r['preset'].startswith('rho') else ' (' + r['preset'] + ')'} | {fmt_number(r['final_reward_mean'])} ± {fmt_number(r['final_reward_std'])} | "
             f"{fmt_number(r['auc_mean'])} ± {fmt_number(r['auc_std'])} | {fmt_number(r['steps_to_threshold_mean'], '{:.0f}')} ± "
             f"{fmt_number(r['steps_to_threshold_std'], '{:.0f}')} | {r['seeds_reaching_threshold']}/{r['seeds']} |"
         )

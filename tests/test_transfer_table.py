@@ -155,3 +155,25 @@ class TestBatchRun:
         assert table[0]["threshold"] == pytest.approx(0.9 * scratch_final, abs=1e-5)
         assert table[0]["transfer_preset"] == "L1"
         assert "go2 -> xbot_l | L1 | 2 |" in (batch_dir / "table4.md").read_text()
+
+
+class TestRatioTable:
+    def row(self, preset, final):
+        return {"preset": preset, "final_reward_mean": final, "final_reward_std": 0.0, "auc_mean": final,
+                "auc_std": 0.0, "steps_to_threshold_mean": None, "steps_to_threshold_std": None,
+                "seeds_reaching_threshold": 0, "seeds": 1}
+
+    def test_presets_stand_in_for_the_ends(self):
+        from ptrl_jax.summary import format_ratio_table, ratio_table
+
+        table = [self.row("none", 1.0), self.row("L1+L2", 2.0), self.row("scratch", 3.0), self.row("rho0.5", 4.0)]
+        rows = ratio_table(table)
+        assert [(r["rho"], r["preset"]) for r in rows] == [(0.0, "none"), (0.5, "rho0.5"), (1.0, "L1+L2")]
+        text = format_ratio_table(rows, "x.png")
+        assert "| 0 (none) | 1.000" in text and "| 0.5 | 4.000" in text and "| 1 (L1+L2) | 2.000" in text
+
+    def test_a_listed_end_is_not_doubled_and_no_ratios_means_no_table(self):
+        from ptrl_jax.summary import ratio_table
+
+        assert [r["preset"] for r in ratio_table([self.row("none", 1.0), self.row("rho0", 1.5)])] == ["rho0"]
+        assert ratio_table([self.row("none", 1.0), self.row("L2", 2.0)]) == []
