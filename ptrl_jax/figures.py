@@ -39,11 +39,11 @@ def plot_velocity_tracking(path: Path, rec: Mapping[str, Any], title: str) -> No
     its heading frame, over time. A fall is marked and the curve stops there."""
     from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
-    alive = np.asarray(rec["alive"]).astype(bool)
-    t = np.arange(len(alive)) * rec["dt"]
-    vel = np.where(alive[:, None], np.asarray(rec["velocity"]), np.nan)
-    cmd = np.asarray(rec["command"])
     fell = np.asarray(rec["fell"]).astype(bool)
+    standing = np.asarray(rec["alive"]).astype(bool) & ~fell  # a fall's step holds the reset state
+    t = np.arange(len(standing)) * rec["dt"]
+    vel = np.where(standing[:, None], np.asarray(rec["velocity"]), np.nan)
+    cmd = np.asarray(rec["command"])
     labels = ("forward vx (m/s)", "sideways vy (m/s)", "yaw rate (rad/s)")
     fig = Figure(figsize=(8, 6.5))
     axes = fig.subplots(3, 1, sharex=True)
@@ -66,7 +66,9 @@ def frame_steps(rec: Mapping[str, Any], frames: int, span_s: float | None = None
     last ``span_s`` seconds (a gait cycle or two of steady walking, or the fall itself)."""
     if frames < 1:
         raise ValueError(f"frames={frames}: must be >= 1")
-    last = max(int(np.asarray(rec["alive"]).astype(bool).sum()) - 1, 0)
+    # The fall's own step records the auto-reset state, so the last frame is the step before it.
+    standing = np.asarray(rec["alive"]).astype(bool) & ~np.asarray(rec["fell"]).astype(bool)
+    last = max(int(standing.sum()) - 1, 0)
     first = 0 if span_s is None else max(last - int(round(span_s / rec["dt"])), 0)
     return np.linspace(first, last, frames).round().astype(int)
 

@@ -56,15 +56,18 @@ class TestFigures:
         frames = render_frames(rec, frames=3, width=96, height=72)
         assert [f.shape for f in frames] == [(72, 96, 3)] * 3
         assert not np.array_equal(frames[0], frames[-1])  # the legs moved
-        # The last frame is the last step alive (19), not the end of the rollout.
+        # The last frame is the last step before the fall (18), not the end of the rollout.
         later = render_frames({**rec, "alive": np.ones(40, bool)}, frames=3, width=96, height=72)
         assert not np.array_equal(frames[-1], later[-1])
 
     def test_a_span_draws_the_last_seconds_before_the_end(self):
-        rec = records(steps=40, fall_at=29)  # alive through step 29; dt 0.02
-        np.testing.assert_array_equal(frame_steps(rec, 3), [0, 14, 29])
-        np.testing.assert_array_equal(frame_steps(rec, 3, span_s=0.2), [19, 24, 29])  # 10 steps back
-        np.testing.assert_array_equal(frame_steps(rec, 2, span_s=5.0), [0, 29])  # clipped at the start
+        # Falls at step 29, whose record is already the auto-reset state: frames end at step 28.
+        rec = records(steps=40, fall_at=29)  # dt 0.02
+        np.testing.assert_array_equal(frame_steps(rec, 3), [0, 14, 28])
+        np.testing.assert_array_equal(frame_steps(rec, 3, span_s=0.2), [18, 23, 28])  # 10 steps back
+        np.testing.assert_array_equal(frame_steps(rec, 2, span_s=5.0), [0, 28])  # clipped at the start
+        no_fall = records(steps=40)
+        np.testing.assert_array_equal(frame_steps(no_fall, 2), [0, 39])
 
     def test_filmstrip_png(self, tmp_path):
         save_filmstrip(tmp_path / "f.png", records(), "go2", frames=4)
