@@ -188,7 +188,11 @@ def save_outputs(
     rows = metric_rows(cfg, out, times, stage_start)
     multi = len(cfg.targets) > 1  # several target robots: file names carry the robot
     artifacts.write_metrics_csv(run_dir / "metrics.csv", rows)
-    if cfg.checkpoint:
+    if cfg.checkpoint and cfg.source_checkpoint:
+        # The source this run transferred from, as it was trained (its own normaliser statistics;
+        # the program's source state holds only its parameters).
+        artifacts.atomic_write_bytes(run_dir / "source.npz", Path(cfg.source_checkpoint).read_bytes())
+    elif cfg.checkpoint:
         src = jax.device_get(out.source)
         artifacts.save_checkpoint(
             run_dir / "source.npz", src.params, src.normalizer, src.frozen, stage_meta(cfg, "source", "source", 0)
