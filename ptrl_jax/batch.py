@@ -95,7 +95,7 @@ def write_table(batch_dir: Path, settings: Mapping[str, Any], configs: Mapping[s
                 rows: list[dict[str, Any]]) -> None:
     name = settings["table"]
     csv_rows = [{k: r.get(k, "") for k in transfer_table.FIELDS} for r in rows]
-    csv_rows.append({k: v for k, v in transfer_table.average_row(rows).items()})
+    csv_rows.append(transfer_table.average_row(rows))
     artifacts.write_metrics_csv(batch_dir / f"{name}.csv", csv_rows)
     any_cfg = next(iter(configs.values()))
     notes = [
