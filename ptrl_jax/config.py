@@ -12,7 +12,7 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
-from ptrl_jax.freeze import FREEZE_PRESETS, ratio_name
+from ptrl_jax.freeze import FREEZE_PRESETS, ratio_name, variant
 
 
 @dataclass(frozen=True)
@@ -245,9 +245,16 @@ class ExperimentConfig:
         return (*self.freeze_presets, *(ratio_name(r) for r in self.freeze_ratio))
 
     @property
+    def trains_source(self) -> bool:
+        """Whether the program trains a source: not when it starts from ``source_checkpoint``, and
+        not when no variant transfers (``freeze_presets=[scratch]``: each target robot trained
+        from scratch alone, the per-robot runs of the README)."""
+        return not self.source_checkpoint and any(variant(v).transfer for v in self.variants)
+
+    @property
     def source_iterations(self) -> int:
-        """Source iterations the program runs: 0 when it starts from ``source_checkpoint``."""
-        return 0 if self.source_checkpoint else self.source.ppo.num_iterations
+        """Source iterations the program runs: 0 when it trains no source (``trains_source``)."""
+        return self.source.ppo.num_iterations if self.trains_source else 0
 
     @property
     def targets(self) -> dict[str, StageConfig]:

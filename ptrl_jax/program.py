@@ -188,7 +188,7 @@ def make_program(
 
     def advance(state: ProgramState, budget: jax.Array) -> ProgramState:
         done = jnp.zeros((), jnp.int32)
-        if n_source:  # a source from a checkpoint (n_source = 0) compiles no source stage at all
+        if n_source:  # no source to train (from a checkpoint, or scratch only): no source stage compiled
             state, done = jax.lax.while_loop(
                 lambda c: (c[0].source.iteration < n_source) & (c[1] < budget), source_body, (state, done)
             )

@@ -182,35 +182,45 @@ def stage_meta(cfg: ExperimentConfig, stage: str, preset: str, seed: int, robot:
     }
 
 
+def save_checkpoints(cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput) -> None:
+    """``source.npz`` (the source this run transferred from; none when it trained no source) and
+    one ``target_[<robot>_]<variant>_seed<k>.npz`` per target run."""
+    if cfg.source_checkpoint:
+        # The source as it was trained (its own normaliser statistics; the program's source state
+        # holds only its parameters).
+        artifacts.atomic_write_bytes(run_dir / "source.npz", Path(cfg.source_checkpoint).read_bytes())
+    elif cfg.trains_source:
+        src = jax.device_get(out.source)
+        artifacts.save_checkpoint(
+            run_dir / "source.npz", src.params, src.normalizer, src.frozen, stage_meta(cfg, "source", "source", 0)
+        )
+    multi = len(cfg.targets) > 1  # several target robots: file names carry the robot
+    for robot in cfg.targets:
+        tgt = jax.device_get(out.target[robot])
+        for p, preset in enumerate(cfg.variants):
+            for s in range(cfg.seeds):
+                pick = lambda x: x[p, s]  # noqa: E731
+                name = f"target_{robot}_{preset}_seed{s}.npz" if multi else f"target_{preset}_seed{s}.npz"
+                artifacts.save_checkpoint(
+                    run_dir / name,
+                    jax.tree.map(pick, tgt.params), jax.tree.map(pick, tgt.normalizer),
+                    jax.tree.map(pick, tgt.frozen), stage_meta(cfg, "target", preset, s, robot),
+                )
+
+
 def save_outputs(
     cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput, times: dict, extra_notes=(), stage_start=None
 ) -> dict:
     rows = metric_rows(cfg, out, times, stage_start)
     multi = len(cfg.targets) > 1  # several target robots: file names carry the robot
     artifacts.write_metrics_csv(run_dir / "metrics.csv", rows)
-    if cfg.checkpoint and cfg.source_checkpoint:
-        # The source this run transferred from, as it was trained (its own normaliser statistics;
-        # the program's source state holds only its parameters).
-        artifacts.atomic_write_bytes(run_dir / "source.npz", Path(cfg.source_checkpoint).read_bytes())
-    elif cfg.checkpoint:
-        src = jax.device_get(out.source)
-        artifacts.save_checkpoint(
-            run_dir / "source.npz", src.params, src.normalizer, src.frozen, stage_meta(cfg, "source", "source", 0)
-        )
-        for robot in cfg.targets:
-            tgt = jax.device_get(out.target[robot])
-            for p, preset in enumerate(cfg.variants):
-                for s in range(cfg.seeds):
-                    pick = lambda x: x[p, s]  # noqa: E731
-                    name = f"target_{robot}_{preset}_seed{s}.npz" if multi else f"target_{preset}_seed{s}.npz"
-                    artifacts.save_checkpoint(
-                        run_dir / name,
-                        jax.tree.map(pick, tgt.params), jax.tree.map(pick, tgt.normalizer),
-                        jax.tree.map(pick, tgt.frozen), stage_meta(cfg, "target", preset, s, robot),
-                    )
+    if cfg.checkpoint:
+        save_checkpoints(cfg, run_dir, out)
     source_curve = [(r["env_steps"], r["episode_reward"]) for r in rows if r["stage"] == "source"]
     if cfg.source_checkpoint:
         source_note = f"Source {cfg.source.robot}: loaded from {cfg.source_checkpoint} (not trained in this run)"
+    elif not cfg.trains_source:
+        source_note = "No source: every variant trains from scratch (no transfer), so none was trained"
     else:
         src_final = np.mean([r for _, r in source_curve][-cfg.report.final_window:])
         source_note = (f"Source {cfg.source.robot}: {cfg.source.ppo.num_iterations} iterations x "
@@ -336,7 +346,7 @@ def load_source_params(cfg: ExperimentConfig, program: Program) -> Any:
 def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array, budget: np.int32):
     """(program, jitted init, compiled advance) for ``cfg``."""
     cache_key = (cfg.source, cfg.target, cfg.extra_targets, cfg.network, cfg.variants, cfg.seeds,
-                 bool(cfg.source_checkpoint))
+                 bool(cfg.source_checkpoint), cfg.trains_source)
     if not progress.show and cache_key in _PROGRAMS:
         return _PROGRAMS[cache_key]
     program = make_program(cfg, progress.hook)

@@ -1,5 +1,7 @@
 """Starting from a trained source (``source_checkpoint``): checked before anything compiles."""
 
+from typing import NamedTuple
+
 import jax
 import numpy as np
 import pytest
@@ -8,7 +10,8 @@ from ptrl_jax import artifacts
 from ptrl_jax.artifacts import CheckpointError
 from ptrl_jax.overrides import load_experiment
 from ptrl_jax.program import make_program
-from ptrl_jax.run import Progress, load_source_params
+from ptrl_jax.program import ProgramOutput
+from ptrl_jax.run import Progress, load_source_params, save_checkpoints
 
 
 @pytest.fixture(scope="module")
@@ -65,3 +68,49 @@ class TestProgressWithoutSourceStage:
         progress.hook("target")({"run_id": 0, "iteration": 0, "episode_reward": 1.0})
         progress.close()
         assert progress.stage_start["target"] == 0.0 and (("target", 0, 0) in progress.times)
+
+
+class _Stage(NamedTuple):  # the fields of a TrainState that checkpoints hold
+    params: dict
+    normalizer: dict
+    frozen: dict
+
+
+def fake_output(cfg, value=1.0):
+    """A ProgramOutput of tiny arrays, with the [variants, seeds] axes of the target states."""
+    lead = (len(cfg.variants), cfg.seeds)
+    target = _Stage({"w": np.full((*lead, 2), value)}, {}, {"w": np.zeros((*lead, 2), bool)})
+    source = _Stage({"w": np.full(2, -value)}, {}, {"w": np.zeros(2, bool)})
+    return ProgramOutput(source, {}, {r: target for r in cfg.targets}, {})
+
+
+class TestCheckpointsOfARun:
+    """Which checkpoints a run writes, by how it got (or did not get) its source."""
+
+    def names(self, tmp_path, overrides):
+        cfg = load_experiment("go2_to_xbot", ["scale=smoke", "seeds=2", "freeze_ratio=[]", *overrides])
+        run_dir = tmp_path / "run"
+        run_dir.mkdir()
+        save_checkpoints(cfg, run_dir, fake_output(cfg))
+        return cfg, run_dir, {p.name for p in run_dir.iterdir()}
+
+    def test_from_a_source_checkpoint_it_copies_the_source_and_saves_every_target(self, tmp_path):
+        # Regression: a source_checkpoint run used to write source.npz and no target checkpoints.
+        source = tmp_path / "trained.npz"
+        write_source(source, {"w": np.arange(2.0)})
+        cfg, run_dir, names = self.names(tmp_path, ["freeze_presets=[L2,scratch]", f"source_checkpoint={source}"])
+        assert names == {"source.npz"} | {f"target_{p}_seed{s}.npz" for p in ("L2", "scratch") for s in (0, 1)}
+        assert (run_dir / "source.npz").read_bytes() == source.read_bytes()
+
+    def test_scratch_only_trains_and_saves_no_source(self, tmp_path):
+        cfg, run_dir, names = self.names(tmp_path, ["freeze_presets=[scratch]"])
+        assert not cfg.trains_source and cfg.source_iterations == 0
+        assert names == {"target_scratch_seed0.npz", "target_scratch_seed1.npz"}
+        ckpt = artifacts.load_checkpoint(run_dir / "target_scratch_seed1.npz")
+        assert ckpt["meta"]["robot"] == "xbot_l" and ckpt["meta"]["seed"] == 1
+
+    def test_a_transfer_run_saves_its_trained_source(self, tmp_path):
+        cfg, run_dir, names = self.names(tmp_path, ["freeze_presets=[L1,scratch]"])
+        assert cfg.trains_source and cfg.source_iterations == 2
+        assert "source.npz" in names and len(names) == 5
+        assert np.array_equal(artifacts.load_checkpoint(run_dir / "source.npz")["params"]["w"], [-1.0, -1.0])
