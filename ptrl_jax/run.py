@@ -237,7 +237,9 @@ def save_outputs(
         robot_rows = [r for r in rows if r["stage"] == "source" or r["robot"] == robot]
         curves = summary.curves_by_preset(robot_rows)
         table, threshold = summary.preset_summary(curves, cfg.report.threshold_fraction, cfg.report.final_window)
-        title = f"{cfg.name}: {cfg.source.robot} -> {robot} ({cfg.scale})"
+        transfers = cfg.trains_source or cfg.source_checkpoint
+        route = f"{cfg.source.robot} -> {robot}" if transfers else f"{robot} from scratch"
+        title = f"{cfg.name}: {route} ({cfg.scale})"
         png = f"curves_{robot}.png" if multi else "curves.png"
         summary.plot_curves(run_dir / png, curves, title, source_curve)
         notes = [f"Target {robot}: {cfg.target.ppo.num_iterations} iterations x "
