@@ -34,13 +34,19 @@ def schedule_commands(schedule, steps: int) -> np.ndarray:
     return rows[segment]
 
 
+def standing_steps(rec: Mapping[str, Any]) -> np.ndarray:
+    """Per step, whether the robot is up: alive, and not the fall's own step (whose record
+    already holds the auto-reset state)."""
+    return np.asarray(rec["alive"]).astype(bool) & ~np.asarray(rec["fell"]).astype(bool)
+
+
 def plot_velocity_tracking(path: Path, rec: Mapping[str, Any], title: str) -> None:
     """Three panels (vx, vy, yaw rate): commanded (dashed) against the base's actual velocity in
     its heading frame, over time. A fall is marked and the curve stops there."""
     from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
     fell = np.asarray(rec["fell"]).astype(bool)
-    standing = np.asarray(rec["alive"]).astype(bool) & ~fell  # a fall's step holds the reset state
+    standing = standing_steps(rec)
     t = np.arange(len(standing)) * rec["dt"]
     vel = np.where(standing[:, None], np.asarray(rec["velocity"]), np.nan)
     cmd = np.asarray(rec["command"])
@@ -66,9 +72,7 @@ def frame_steps(rec: Mapping[str, Any], frames: int, span_s: float | None = None
     last ``span_s`` seconds (a gait cycle or two of steady walking, or the fall itself)."""
     if frames < 1:
         raise ValueError(f"frames={frames}: must be >= 1")
-    # The fall's own step records the auto-reset state, so the last frame is the step before it.
-    standing = np.asarray(rec["alive"]).astype(bool) & ~np.asarray(rec["fell"]).astype(bool)
-    last = max(int(standing.sum()) - 1, 0)
+    last = max(int(standing_steps(rec).sum()) - 1, 0)  # the step before a fall
     first = 0 if span_s is None else max(last - int(round(span_s / rec["dt"])), 0)
     return np.linspace(first, last, frames).round().astype(int)
 

@@ -217,9 +217,10 @@ def save_outputs(
     if cfg.checkpoint:
         save_checkpoints(cfg, run_dir, out)
     source_curve = [(r["env_steps"], r["episode_reward"]) for r in rows if r["stage"] == "source"]
+    transfers = cfg.trains_source or bool(cfg.source_checkpoint)
     if cfg.source_checkpoint:
         source_note = f"Source {cfg.source.robot}: loaded from {cfg.source_checkpoint} (not trained in this run)"
-    elif not cfg.trains_source:
+    elif not transfers:
         source_note = "No source: every variant trains from scratch (no transfer), so none was trained"
     else:
         src_final = np.mean([r for _, r in source_curve][-cfg.report.final_window:])
@@ -237,7 +238,6 @@ def save_outputs(
         robot_rows = [r for r in rows if r["stage"] == "source" or r["robot"] == robot]
         curves = summary.curves_by_preset(robot_rows)
         table, threshold = summary.preset_summary(curves, cfg.report.threshold_fraction, cfg.report.final_window)
-        transfers = cfg.trains_source or cfg.source_checkpoint
         route = f"{cfg.source.robot} -> {robot}" if transfers else f"{robot} from scratch"
         title = f"{cfg.name}: {route} ({cfg.scale})"
         png = f"curves_{robot}.png" if multi else "curves.png"

@@ -9,8 +9,7 @@ import pytest
 from ptrl_jax import artifacts
 from ptrl_jax.artifacts import CheckpointError
 from ptrl_jax.overrides import load_experiment
-from ptrl_jax.program import make_program
-from ptrl_jax.program import ProgramOutput
+from ptrl_jax.program import ProgramOutput, make_program
 from ptrl_jax.run import Progress, load_source_params, save_checkpoints
 
 
@@ -76,11 +75,12 @@ class _Stage(NamedTuple):  # the fields of a TrainState that checkpoints hold
     frozen: dict
 
 
-def fake_output(cfg, value=1.0):
-    """A ProgramOutput of tiny arrays, with the [variants, seeds] axes of the target states."""
+def fake_output(cfg):
+    """A ProgramOutput of tiny arrays (source weights -1, targets +1), with the [variants, seeds]
+    axes of the target states."""
     lead = (len(cfg.variants), cfg.seeds)
-    target = _Stage({"w": np.full((*lead, 2), value)}, {}, {"w": np.zeros((*lead, 2), bool)})
-    source = _Stage({"w": np.full(2, -value)}, {}, {"w": np.zeros(2, bool)})
+    target = _Stage({"w": np.ones((*lead, 2))}, {}, {"w": np.zeros((*lead, 2), bool)})
+    source = _Stage({"w": -np.ones(2)}, {}, {"w": np.zeros(2, bool)})
     return ProgramOutput(source, {}, {r: target for r in cfg.targets}, {})
 
 
