@@ -5,8 +5,10 @@
     python -m ptrl_jax.evaluate ckpt=... mcap=rollout.mcap # also write the rollout for Foxglove
     python -m ptrl_jax.evaluate ckpt=... schedule=fig6 plot=tracking.png   # paper Fig. 6
     python -m ptrl_jax.evaluate ckpt=... filmstrip=go2.png filmstrip_span=1.2   # Figs. 4, 8, 9
+    python -m ptrl_jax.evaluate ckpt=... stochastic=true   # sampled actions, as in training
 
-The policy's mean action is applied (no sampling), the command is held fixed, and the episode
+The policy's mean action is applied (no sampling; ``stochastic=true`` samples the actions from
+the policy's Gaussian instead, as in training), the command is held fixed, and the episode
 time limit is lifted, so the rollout ends only by a fall or after ``seconds``. ``sim=mjx`` (the
 default) rolls out the training env; ``sim=mujoco`` also rolls out the same policy in the MuJoCo
 C env (``envs.gym_env``: same model, observation and reward code, another physics engine) and
@@ -29,8 +31,8 @@ import envs
 from ptrl_jax.artifacts import CheckpointError, load_checkpoint
 from ptrl_jax.config import NetworkConfig
 from ptrl_jax.figures import FIG6_SCHEDULE, schedule_commands
-from ptrl_jax.networks import policy_apply
-from ptrl_jax.overrides import ConfigError, apply_overrides, flatten, parse_cli
+from ptrl_jax.networks import make_policy
+from ptrl_jax.overrides import ConfigError, apply_overrides, coerce, flatten, parse_cli
 from ptrl_jax.train import normalize_obs
 
 SIMS = ("mjx", "mujoco")
@@ -52,13 +54,19 @@ def fixed_command_config(env_cfg: Any, command: tuple[float, float, float], seco
                                init_joint_noise=0.0, init_base_vel_noise=0.0, randomization=randomization)
 
 
-def make_actor(params: Any, normalizer: Any, network: NetworkConfig, normalize_observations: bool = True
-               ) -> Callable[[Mapping[str, jax.Array]], jax.Array]:
-    """Raw observation dict -> deterministic action (the Gaussian's mean)."""
+def make_actor(params: Any, normalizer: Any, network: NetworkConfig, normalize_observations: bool = True,
+               stochastic: bool = False) -> Callable[[Mapping[str, jax.Array], jax.Array], jax.Array]:
+    """``act(raw observation dict, key) -> action``: the Gaussian's mean (the key is unused), or
+    with ``stochastic`` a sample from the Gaussian, as the training rollouts act.
 
-    def act(obs):
-        obs = normalize_obs(normalizer, obs, normalize_observations)
-        return policy_apply(params, obs, network).mean
+    Why both: a policy can owe its motion to the exploration noise. A1 trained for 240
+    iterations stands still under its mean action (0.004 m/s at vx = 0.5) but moves 0.19 m/s
+    with sampled actions, so the deterministic check and the training reward disagree."""
+
+    policy = make_policy(params, network, deterministic=not stochastic)
+
+    def act(obs, key):
+        return policy(normalize_obs(normalizer, obs, normalize_observations), key)
 
     return act
 
@@ -74,10 +82,11 @@ def rollout_mjx(robot: str, env_cfg: Any, actor, command, seconds: float, seed: 
     commands = None if schedule is None else jnp.asarray(schedule_commands(schedule, steps))
 
     def step(carry, command_now):
-        state, alive = carry
+        state, alive, key = carry
+        key, action_key = jax.random.split(key)
         if command_now is not None:
             state = state.replace(info={**state.info, "command": command_now})
-        nxt = env.step(state, actor(state.obs))
+        nxt = env.step(state, actor(state.obs, action_key))
         data = nxt.pipeline_state
         fell = nxt.info["termination"] > 0
         record = {
@@ -86,12 +95,13 @@ def rollout_mjx(robot: str, env_cfg: Any, actor, command, seconds: float, seed: 
             "height": data.qpos[2], "qpos": data.qpos, "qvel": data.qvel,
             "command": state.info["command"], "terms": nxt.metrics,
         }
-        return (nxt, alive & ~fell), record
+        return (nxt, alive & ~fell, key), record
 
     @jax.jit
     def rollout(key):
-        state = env.reset(key)
-        _, records = jax.lax.scan(step, (state, jnp.array(True)), commands, length=steps)
+        state = env.reset(key)  # the same reset as before actions could be sampled
+        action_key = jax.random.fold_in(key, 1)
+        _, records = jax.lax.scan(step, (state, jnp.array(True), action_key), commands, length=steps)
         return records
 
     rec = jax.device_get(rollout(jax.random.PRNGKey(seed)))
@@ -104,7 +114,8 @@ def rollout_mujoco(robot: str, env_cfg: Any, actor, command, seconds: float, see
     """The same rollout in the MuJoCo C env (``envs.gym_env``), with the same records."""
     gym_env = envs.LocomotionGymEnv(robot, fixed_command_config(env_cfg, command, seconds))
     steps = int(round(seconds / gym_env.config.ctrl_dt))
-    act = jax.jit(lambda obs: actor(obs))
+    act = jax.jit(actor)
+    key = jax.random.fold_in(jax.random.PRNGKey(seed), 1)
     obs, info = gym_env.reset(seed=seed, options={"command": command})
     full_obs = {"state": obs, "privileged_state": info["privileged_state"]}
     keys = ("alive", "fell", "velocity", "height", "qpos", "qvel", "command")
@@ -112,7 +123,8 @@ def rollout_mujoco(robot: str, env_cfg: Any, actor, command, seconds: float, see
     terms: dict[str, list] = {}
     alive = True
     for _ in range(steps):
-        action = np.asarray(act(full_obs)) if alive else np.zeros(gym_env.action_space.shape, np.float32)
+        key, action_key = jax.random.split(key)
+        action = np.asarray(act(full_obs, action_key)) if alive else np.zeros(gym_env.action_space.shape, np.float32)
         cmd = info["command"]
         obs, _, terminated, _, info = gym_env.step(action)
         d = gym_env.data
@@ -172,15 +184,17 @@ def evaluate_policy(
     plot_path: str | None = None,
     filmstrip_path: str | None = None,
     filmstrip_span_s: float | None = None,
+    stochastic: bool = False,
 ) -> dict[str, Any]:
     """Roll out one env for ``seconds`` under a fixed command (or a ``schedule`` of commands,
     MJX only); report tracking and falls. Optionally write the rollout as MCAP, the velocity
-    tracking figure (Fig. 6) and a filmstrip (Figs. 4, 8, 9)."""
+    tracking figure (Fig. 6) and a filmstrip (Figs. 4, 8, 9). ``stochastic`` samples the
+    actions (``make_actor``); ``seed`` then also picks the samples."""
     if sim not in SIMS:
         raise ValueError(f"sim={sim!r}: choose one of {SIMS}")
     if schedule is not None and sim != "mjx":
         raise ValueError("a command schedule needs sim=mjx (the MuJoCo C env holds one command)")
-    actor = make_actor(params, normalizer, network, normalize_observations)
+    actor = make_actor(params, normalizer, network, normalize_observations, stochastic)
     if sim == "mjx":
         rec = rollout_mjx(robot, env_cfg, actor, tuple(float(c) for c in command), seconds, seed, schedule)
     else:
@@ -197,6 +211,7 @@ def evaluate_policy(
 
         save_filmstrip(filmstrip_path, rec, title, span_s=filmstrip_span_s)
     result = summarize(rec, robot, command, seconds, sim)
+    result["actions"] = "sampled" if stochastic else "mean"
     if schedule is not None:
         # Per-step tracking against the commands actually given (the fixed-command fields above
         # compare with ``command``, which a schedule replaces).
@@ -257,7 +272,7 @@ def type_stats(d: Mapping[str, Any]):
 
 
 KNOWN_ARGS = ("ckpt", "vx", "vy", "yaw", "seconds", "sim", "seed", "mcap", "plot", "filmstrip", "filmstrip_span",
-              "schedule")
+              "schedule", "stochastic")
 
 
 def parse_schedule(text: str):
@@ -292,6 +307,7 @@ def main(argv: list[str] | None = None) -> int:
         if seconds <= 0:
             raise ConfigError(f"seconds={seconds}: must be > 0")
         schedule = parse_schedule(args["schedule"]) if "schedule" in args else None
+        stochastic = coerce(args.get("stochastic", "false"), bool, "stochastic")
         span = float(args["filmstrip_span"]) if "filmstrip_span" in args else None
         if span is not None and span <= 0:
             raise ConfigError(f"filmstrip_span={span}: must be > 0 (seconds before the rollout's end or fall)")
@@ -306,7 +322,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     common = dict(robot=policy["robot"], env_cfg=policy["env"], params=policy["params"],
                   normalizer=policy["normalizer"], network=policy["network"], command=command,
-                  seconds=seconds, seed=seed, normalize_observations=policy["normalize_observations"])
+                  seconds=seconds, seed=seed, normalize_observations=policy["normalize_observations"],
+                  stochastic=stochastic)
     results = [evaluate_policy(**common, sim="mjx", mcap_path=args.get("mcap") if sim == "mjx" else None,
                                schedule=schedule, plot_path=args.get("plot"), filmstrip_path=args.get("filmstrip"),
                                filmstrip_span_s=span)]
@@ -322,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def format_side_by_side(results: list[dict[str, Any]]) -> str:
     rows = [("metric", *[r["sim"] for r in results])]
-    for key in ("fell", "time_survived_s", "mean_velocity", "forward_speed_error", "tracking_rmse", "mean_base_height"):
+    for key in ("actions", "fell", "time_survived_s", "mean_velocity", "forward_speed_error", "tracking_rmse", "mean_base_height"):
         fmt = lambda v: ", ".join(f"{x:.3f}" for x in v) if isinstance(v, list) else (f"{v:.3f}" if isinstance(v, float) else str(v))  # noqa: E731
         rows.append((key, *[fmt(r[key]) for r in results]))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]

@@ -40,7 +40,8 @@ def valid_keys(obj: Any, prefix: str = "") -> list[str]:
     return keys
 
 
-def _coerce(value: Any, annotation: Any, key: str) -> Any:
+def coerce(value: Any, annotation: Any, key: str) -> Any:
+    """``value`` (often CLI text) as ``annotation``'s type; a ConfigError names ``key``."""
     origin = typing.get_origin(annotation)
     if annotation is Any:
         return value
@@ -48,7 +49,7 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
         args = [a for a in typing.get_args(annotation) if a is not type(None)]
         if value is None or (isinstance(value, str) and value.lower() in ("none", "null")):
             return None
-        return _coerce(value, args[0], key)
+        return coerce(value, args[0], key)
     if origin is tuple:
         args = typing.get_args(annotation)
         if isinstance(value, str):
@@ -57,10 +58,10 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
             value = [value]
         elem = args[0] if args else Any
         if len(args) == 2 and args[1] is Ellipsis or len(args) <= 1:
-            return tuple(_coerce(v, elem, key) for v in value)
+            return tuple(coerce(v, elem, key) for v in value)
         if len(value) != len(args):
             raise ConfigError(f"{key}: expected {len(args)} values, got {len(value)} ({value!r})")
-        return tuple(_coerce(v, a, key) for v, a in zip(value, args))
+        return tuple(coerce(v, a, key) for v, a in zip(value, args))
     if annotation is bool:
         if isinstance(value, bool):
             return value
@@ -114,7 +115,7 @@ def apply_overrides(obj: Any, overrides: Mapping[str, Any], prefix: str = "") ->
         current = getattr(obj, head)
         if dataclasses.is_dataclass(current):
             raise ConfigError(f"{prefix}{head} is a group; set one of its keys, e.g. {valid_keys(current, prefix + head + '.')[0]!r}")
-        changes[head] = _coerce(value, hints[head], prefix + head)
+        changes[head] = coerce(value, hints[head], prefix + head)
     for head, sub in grouped.items():
         current = changes.get(head, getattr(obj, head))
         if not dataclasses.is_dataclass(current):

@@ -41,7 +41,7 @@ class TestSchedule:
 
     def test_the_mjx_rollout_follows_the_schedule(self):
         rows = ((0.2, 0.0, 0.0), (0.6, 0.1, -0.3))
-        actor = lambda obs: jnp.zeros(12)  # noqa: E731
+        actor = lambda obs, key: jnp.zeros(12)  # noqa: E731
         rec = rollout_mjx("go2", envs.default_config("go2"), actor, (0.0, 0.0, 0.0), 0.2, schedule=rows)
         np.testing.assert_allclose(rec["command"], schedule_commands(rows, 10), atol=1e-7)
 
