@@ -55,6 +55,7 @@ class PPOHparams(NamedTuple):
     desired_kl: Any
     min_learning_rate: Any
     max_learning_rate: Any
+    final_noise_std: Any
 
 
 @dataclass(frozen=True)
@@ -97,6 +98,13 @@ class PPOConfig:
     """Lower bound of the adaptive learning rate."""
     max_learning_rate: float = 1e-2
     """Upper bound of the adaptive learning rate."""
+    final_noise_iterations: int = 0
+    """Closing iterations of the stage run with the policy std held at ``final_noise_std`` (the
+    log-std is set and not learned); 0 keeps the std learned throughout, as rsl_rl does. Why:
+    at CPU budgets PPO can learn a gait that only the exploration noise drives, so the mean
+    action stands (README, Go2); training on with less noise makes the mean action walk."""
+    final_noise_std: float = 0.2
+    """The policy std of the closing ``final_noise_iterations`` (per action, before action_scale)."""
 
     def __post_init__(self):
         for name in ("num_envs", "unroll_length", "num_epochs", "num_minibatches", "num_iterations"):
@@ -115,6 +123,13 @@ class PPOConfig:
         for name in ("learning_rate", "clip_epsilon", "max_grad_norm", "desired_kl", "min_learning_rate"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"ppo.{name} must be > 0, got {getattr(self, name)}")
+        if not 0 <= int(self.final_noise_iterations) <= int(self.num_iterations):
+            raise ValueError(
+                f"ppo.final_noise_iterations must lie in [0, ppo.num_iterations={self.num_iterations}], "
+                f"got {self.final_noise_iterations}"
+            )
+        if self.final_noise_std <= 0:
+            raise ValueError(f"ppo.final_noise_std must be > 0, got {self.final_noise_std}")
         if self.value_coef < 0 or self.entropy_coef < 0:
             raise ValueError("ppo.value_coef and ppo.entropy_coef must be >= 0")
         if not self.min_learning_rate <= self.learning_rate <= self.max_learning_rate:

@@ -205,9 +205,23 @@ def make_train(
 
         return sgd_step
 
+    def hold_closing_noise(state: TrainState) -> tuple[TrainState, Mask]:
+        """In the stage's last ``final_noise_iterations``, set the policy std to
+        ``final_noise_std`` and leave it out of the update (the mask freezes it, like a frozen
+        layer; ``state.frozen``, the run's PTRL mask, is not changed). The checkpoint's log-std
+        is then the std the policy last acted with."""
+        if not ppo.final_noise_iterations:  # static: programs without the phase are unchanged
+            return state, state.frozen
+        closing = state.iteration >= ppo.num_iterations - ppo.final_noise_iterations
+        log_std = state.params["log_std"]
+        log_std = jnp.where(closing, jnp.log(state.hparams.final_noise_std).astype(log_std.dtype), log_std)
+        frozen = {**state.frozen, "log_std": state.frozen["log_std"] | closing}
+        return state._replace(params={**state.params, "log_std": log_std}), frozen
+
     def iteration(state: TrainState) -> tuple[TrainState, dict]:
         hp = state.hparams
-        sgd_step = make_sgd_step(hp, state.frozen)
+        state, update_frozen = hold_closing_noise(state)
+        sgd_step = make_sgd_step(hp, update_frozen)
         env_state, episodes, new_stats, key, tr, extras = rollout(state)
 
         values = value_apply(state.params, tr.observation, network)
@@ -249,6 +263,7 @@ def make_train(
             "episodes_finished": jnp.sum(episodes.finished),
             "step_reward": jnp.mean(tr.reward),
             "learning_rate": lr,
+            "noise_std": jnp.mean(jnp.exp(state.params["log_std"])),  # the std this iteration acted with
             "nonfinite_states": jnp.sum(extras["nonfinite"]),
             **{f"episode_{k}": ep_mean(v) for k, v in episodes.last_terms.items()},
             **{k: jnp.mean(v) for k, v in sgd_metrics.items()},

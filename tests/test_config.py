@@ -31,6 +31,8 @@ class TestOverrides:
         ("seeds=two", "seeds: expected an integer"),
         ("target.ppo.gamma=1.5", "gamma must be in"),
         ("target.ppo.num_minibatches=7", "not divisible"),
+        ("scale=smoke target.ppo.final_noise_iterations=3", "final_noise_iterations must lie in \\[0, ppo.num_iterations=2\\]"),
+        ("source.ppo.final_noise_std=0", "final_noise_std must be > 0"),
         ("freeze_presets=[L3]", "unknown \\['L3'\\]"),
         ("freeze_ratio=[0.5,1.5]", "freeze_ratio: \\[1.5\\] outside \\[0, 1\\]"),
         ("freeze_ratio=[0.5,0.5]", "repeat a variant"),
@@ -47,7 +49,7 @@ class TestOverrides:
                 envs.make(cfg.source.robot, cfg.source.env)
             return
         with pytest.raises(ConfigError, match=message):
-            load_experiment("go2_to_xbot", [arg])
+            load_experiment("go2_to_xbot", arg.split())
 
     def test_unknown_experiment(self):
         with pytest.raises(ConfigError, match="did you mean 'go2_to_xbot'"):
@@ -106,4 +108,4 @@ class TestPresets:
     ])
     def test_bad_extra_targets_are_refused(self, arg, message):
         with pytest.raises(ConfigError, match=message):
-            load_experiment("go2_to_xbot", [arg])
+            load_experiment("go2_to_xbot", arg.split())

@@ -106,3 +106,45 @@ class TestDeterminism:
         _, m2 = train(jax.random.PRNGKey(5), ppo.hparams(), empty_mask(params), params)
         for k in m1:
             assert np.array_equal(np.asarray(m1[k]), np.asarray(m2[k])), k
+
+
+class TestClosingNoise:
+    """``ppo.final_noise_iterations``: the last iterations act with the std held at
+    ``final_noise_std`` while the rest of the network keeps learning."""
+
+    PPO = dataclasses.replace(PPO, num_iterations=6, final_noise_iterations=2, final_noise_std=0.1,
+                              entropy_coef=0.01)
+
+    def _run(self, ppo):
+        trainer = make_train(PointMass(), ppo, NET)
+        params = trainer.init_params(jax.random.PRNGKey(0))
+        state = trainer.init(jax.random.PRNGKey(1), ppo.hparams(), empty_mask(params), params)
+        iteration = jax.jit(trainer.iteration)
+        states, stds = [state], []
+        for _ in range(ppo.num_iterations):
+            state, metrics = iteration(state)
+            states.append(state)
+            stds.append(float(metrics["noise_std"]))
+        return states, np.asarray(stds)
+
+    def test_std_is_learned_then_held(self):
+        states, stds = self._run(self.PPO)
+        assert np.all(np.abs(stds[:4] - 0.1) > 0.05), stds  # learned from 0.5 first
+        assert not np.allclose(stds[1:4], stds[0]), stds  # and it did move
+        np.testing.assert_allclose(stds[4:], 0.1, rtol=1e-6)
+        held = np.log(np.float32(0.1)).astype(np.float32)
+        assert np.all(np.asarray(states[-1].params["log_std"]) == held)
+        assert np.all(np.asarray(states[-2].params["log_std"]) == held)
+
+    def test_the_rest_of_the_network_keeps_learning(self):
+        states, _ = self._run(self.PPO)
+        w = lambda s: np.asarray(s.params["actor"]["layer_3"]["w"])  # noqa: E731
+        assert not np.array_equal(w(states[-1]), w(states[-2]))
+
+    def test_the_run_mask_is_not_changed(self):
+        states, _ = self._run(self.PPO)
+        assert not any(np.any(np.asarray(m)) for m in jax.tree.leaves(states[-1].frozen))
+
+    def test_off_by_default(self):
+        _, stds = self._run(dataclasses.replace(self.PPO, final_noise_iterations=0))
+        assert np.all(np.abs(stds - 0.1) > 0.05), stds
