@@ -17,9 +17,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 # PipelineEnv structure on MuJoCo MJX, which is maintained.
 warnings.filterwarnings("ignore", message="Brax System, piplines and environments", category=UserWarning)
 
-from envs.registry import ROBOTS, default_config, make, robot_names  # noqa: E402
+from envs.registry import ROBOTS, default_config, family, make, robot_names  # noqa: E402
 from envs.gym_env import GYM_IDS, LocomotionGymEnv, register as _register_gymnasium  # noqa: E402
 
 _register_gymnasium()  # gymnasium.make("ptrl/Go2-v0") works once `envs` is imported
 
-__all__ = ["GYM_IDS", "ROBOTS", "LocomotionGymEnv", "default_config", "make", "robot_names"]
+__all__ = ["GYM_IDS", "ROBOTS", "LocomotionGymEnv", "default_config", "family", "make", "robot_names"]

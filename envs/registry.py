@@ -40,6 +40,11 @@ def _entry(robot: str) -> RobotEntry:
     return ROBOTS[robot]
 
 
+def family(robot: str) -> type[LeggedEnv]:
+    """The robot's env class: ``QuadrupedEnv`` or ``BipedEnv``."""
+    return _entry(robot).family
+
+
 def default_config(robot: str) -> LocomotionConfig:
     return _entry(robot).config
 

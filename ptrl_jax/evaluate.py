@@ -6,6 +6,7 @@
     python -m ptrl_jax.evaluate ckpt=... schedule=fig6 plot=tracking.png   # paper Fig. 6
     python -m ptrl_jax.evaluate ckpt=... filmstrip=go2.png filmstrip_span=1.2   # Figs. 4, 8, 9
     python -m ptrl_jax.evaluate ckpt=... stochastic=true   # sampled actions, as in training
+    python -m ptrl_jax.evaluate ckpt=... check=true        # the robot family's walking check
 
 The policy's mean action is applied (no sampling; ``stochastic=true`` samples the actions from
 the policy's Gaussian instead, as in training), the command is held fixed, and the episode
@@ -28,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
+from envs.quadruped import QuadrupedEnv
 from ptrl_jax.artifacts import CheckpointError, load_checkpoint
 from ptrl_jax.config import NetworkConfig
 from ptrl_jax.figures import FIG6_SCHEDULE, schedule_commands
@@ -36,6 +38,74 @@ from ptrl_jax.overrides import ConfigError, apply_overrides, coerce, flatten, pa
 from ptrl_jax.train import normalize_obs
 
 SIMS = ("mjx", "mujoco")
+
+
+@dataclasses.dataclass(frozen=True)
+class WalkingCheck:
+    """One deterministic rollout of the walking check: hold ``command`` for ``seconds``; it
+    passes when the robot does not fall and its mean forward speed is within
+    ``max_speed_error`` of the commanded vx."""
+
+    name: str
+    """What the rollout shows ("walk", "stand")."""
+    command: tuple[float, float, float]
+    """(vx, vy, yaw_rate) held throughout, m/s and rad/s."""
+    seconds: float = 20.0
+    """Rollout length, s."""
+    max_speed_error: float = 0.15
+    """Largest accepted |mean forward speed - commanded vx|, m/s."""
+
+
+# Issue 3's checks. Quadrupeds: Go2's walking check (vx 0.5 for 20 s, no fall, within 0.15 m/s).
+# Bipeds: stand 20 s at zero command and walk at vx 0.3 without falling; we hold both to the
+# quadrupeds' 0.15 m/s speed tolerance, so that drifting away does not count as standing and
+# standing still does not count as walking.
+QUADRUPED_CHECKS = (WalkingCheck("walk", (0.5, 0.0, 0.0)),)
+BIPED_CHECKS = (WalkingCheck("stand", (0.0, 0.0, 0.0)), WalkingCheck("walk", (0.3, 0.0, 0.0)))
+
+
+def walking_checks(robot: str) -> tuple[WalkingCheck, ...]:
+    """The checks of the robot's family."""
+    return QUADRUPED_CHECKS if issubclass(envs.family(robot), QuadrupedEnv) else BIPED_CHECKS
+
+
+def check_verdict(check: WalkingCheck, result: Mapping[str, Any]) -> dict[str, Any]:
+    """``result`` (``summarize``'s fields) judged against ``check``: passed, and why not."""
+    reasons = []
+    if result["fell"]:
+        reasons.append(f"fell at {result['time_survived_s']:.2f} s")
+    error = result["forward_speed_error"]
+    if not error <= check.max_speed_error:  # NaN (no step survived) fails too
+        reasons.append(f"forward speed {result['mean_velocity'][0]:.3f} m/s, {error:.3f} from the command "
+                       f"(at most {check.max_speed_error})")
+    return {"check": check.name, "command": list(check.command), "passed": not reasons,
+            "why_not": "; ".join(reasons), **{k: result[k] for k in ("fell", "time_survived_s", "mean_velocity",
+                                                                     "forward_speed_error")}}
+
+
+def run_walking_check(policy: Mapping[str, Any], seed: int = 0, sim: str = "mjx",
+                      evaluate: Callable[..., dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+    """Every check of the policy's robot family, each a deterministic rollout (mean action, no
+    initial noise, no randomization); one verdict per check."""
+    evaluate = evaluate_policy if evaluate is None else evaluate
+    verdicts = []
+    for check in walking_checks(policy["robot"]):
+        result = evaluate(robot=policy["robot"], env_cfg=policy["env"], params=policy["params"],
+                          normalizer=policy["normalizer"], network=policy["network"], command=check.command,
+                          seconds=check.seconds, seed=seed, sim=sim,
+                          normalize_observations=policy["normalize_observations"])
+        verdicts.append(check_verdict(check, result))
+    return verdicts
+
+
+def format_verdicts(robot: str, verdicts: list[dict[str, Any]]) -> str:
+    lines = [f"walking check, {robot}:"]
+    for v in verdicts:
+        status = "pass" if v["passed"] else f"FAIL ({v['why_not']})"
+        lines.append(f"  {v['check']:5s} vx {v['command'][0]:.2f}: survived {v['time_survived_s']:.2f} s, "
+                     f"forward speed {v['mean_velocity'][0]:.3f} m/s: {status}")
+    lines.append("passes" if all(v["passed"] for v in verdicts) else "fails")
+    return "\n".join(lines)
 
 
 def fixed_command_config(env_cfg: Any, command: tuple[float, float, float], seconds: float) -> Any:
@@ -279,7 +349,9 @@ def type_stats(d: Mapping[str, Any]):
 
 
 KNOWN_ARGS = ("ckpt", "vx", "vy", "yaw", "seconds", "sim", "seed", "mcap", "plot", "filmstrip", "filmstrip_span",
-              "schedule", "stochastic")
+              "schedule", "stochastic", "check")
+ROLLOUT_ARGS = ("vx", "vy", "yaw", "seconds", "mcap", "plot", "filmstrip", "filmstrip_span", "schedule", "stochastic")
+"""Arguments of a single rollout, which ``check=true`` replaces by the family's fixed checks."""
 
 
 def parse_schedule(text: str):
@@ -315,6 +387,10 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"seconds={seconds}: must be > 0")
         schedule = parse_schedule(args["schedule"]) if "schedule" in args else None
         stochastic = coerce(args.get("stochastic", "false"), bool, "stochastic")
+        check = coerce(args.get("check", "false"), bool, "check")
+        if check and set(args) & set(ROLLOUT_ARGS):
+            raise ConfigError(f"check=true runs the robot family's fixed rollouts; drop "
+                              f"{', '.join(sorted(set(args) & set(ROLLOUT_ARGS)))}")
         span = float(args["filmstrip_span"]) if "filmstrip_span" in args else None
         if span is not None and span <= 0:
             raise ConfigError(f"filmstrip_span={span}: must be > 0 (seconds before the rollout's end or fall)")
@@ -327,6 +403,11 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, CheckpointError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    if check:  # exit status 0 when every check passes, 1 when one fails
+        verdicts = run_walking_check(policy, seed=seed, sim=sim)
+        print(json.dumps(verdicts, indent=2))
+        print(format_verdicts(policy["robot"], verdicts))
+        return 0 if all(v["passed"] for v in verdicts) else 1
     common = dict(robot=policy["robot"], env_cfg=policy["env"], params=policy["params"],
                   normalizer=policy["normalizer"], network=policy["network"], command=command,
                   seconds=seconds, seed=seed, normalize_observations=policy["normalize_observations"],

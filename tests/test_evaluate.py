@@ -70,3 +70,83 @@ class TestCli:
     def test_a_bad_stochastic_value_is_refused_naming_the_key(self, capsys):
         assert evaluate.main(["ckpt=missing.npz", "stochastic=maybe"]) == 2
         assert "stochastic" in capsys.readouterr().err
+
+
+def summary(fell=False, survived=20.0, vx=0.45, command_vx=0.5):
+    """``evaluate.summarize``'s fields for a hand-made rollout."""
+    return {"fell": fell, "time_survived_s": survived, "mean_velocity": [vx, 0.0, 0.0],
+            "forward_speed_error": abs(vx - command_vx)}
+
+
+class TestWalkingCheckVerdict:
+    WALK = evaluate.WalkingCheck("walk", (0.5, 0.0, 0.0))
+
+    def test_no_fall_within_the_tolerance_passes(self):
+        v = evaluate.check_verdict(self.WALK, summary(vx=0.36))  # 0.14 from 0.5
+        assert v["passed"] and v["why_not"] == ""
+
+    def test_standing_still_under_a_walk_command_fails_naming_the_speed(self):
+        v = evaluate.check_verdict(self.WALK, summary(vx=0.004))
+        assert not v["passed"] and "forward speed 0.004" in v["why_not"]
+
+    def test_a_fall_fails_even_at_the_right_speed(self):
+        v = evaluate.check_verdict(self.WALK, summary(fell=True, survived=1.72, vx=0.5))
+        assert not v["passed"] and v["why_not"] == "fell at 1.72 s"
+
+    def test_no_surviving_step_fails(self):
+        v = evaluate.check_verdict(self.WALK, summary(fell=True, survived=0.0, vx=float("nan")))
+        assert not v["passed"] and "forward speed nan" in v["why_not"]
+
+
+class TestWalkingChecksPerFamily:
+    def test_quadrupeds_walk_at_half_a_metre_per_second(self):
+        for robot in ("go2", "a1", "anymal_b", "anymal_c"):
+            assert [c.command for c in evaluate.walking_checks(robot)] == [(0.5, 0.0, 0.0)]
+
+    def test_bipeds_stand_then_walk_at_0_3(self):
+        for robot in ("xbot_l", "mit_humanoid", "cassie", "tron1"):
+            checks = evaluate.walking_checks(robot)
+            assert [(c.name, c.command) for c in checks] == [("stand", (0.0, 0.0, 0.0)), ("walk", (0.3, 0.0, 0.0))]
+            assert all(c.seconds == 20.0 and c.max_speed_error == 0.15 for c in checks)
+
+    def test_each_check_is_a_deterministic_rollout_of_its_command(self):
+        calls = []
+
+        def fake_evaluate(**kw):
+            calls.append(kw)
+            return summary(vx=kw["command"][0], command_vx=kw["command"][0])
+
+        policy = {"robot": "cassie", "env": "ENV", "params": "P", "normalizer": "N", "network": "NET",
+                  "normalize_observations": True}
+        verdicts = evaluate.run_walking_check(policy, seed=3, evaluate=fake_evaluate)
+        assert [c["command"] for c in calls] == [(0.0, 0.0, 0.0), (0.3, 0.0, 0.0)]
+        assert all(c["seconds"] == 20.0 and c["seed"] == 3 and "stochastic" not in c for c in calls)
+        assert [v["passed"] for v in verdicts] == [True, True]
+
+
+class TestCheckCli:
+    def policy(self, robot):
+        return {"robot": robot, "env": None, "params": None, "normalizer": None, "network": None,
+                "normalize_observations": True}
+
+    def test_exit_status_says_whether_every_check_passed(self, monkeypatch, capsys):
+        monkeypatch.setattr(evaluate, "policy_from_checkpoint", lambda path: self.policy("tron1"))
+        walks_in_place = lambda **kw: summary(vx=0.0, command_vx=kw["command"][0])  # noqa: E731
+        monkeypatch.setattr(evaluate, "evaluate_policy", walks_in_place)
+        assert evaluate.main(["ckpt=x.npz", "check=true"]) == 1  # stands, so the walk fails
+        out = capsys.readouterr().out
+        assert "stand vx 0.00" in out and ": pass" in out and "FAIL (forward speed 0.000" in out
+        assert out.rstrip().endswith("fails")
+        monkeypatch.setattr(evaluate, "evaluate_policy", lambda **kw: summary(vx=0.5))
+        monkeypatch.setattr(evaluate, "policy_from_checkpoint", lambda path: self.policy("go2"))
+        assert evaluate.main(["ckpt=x.npz", "check=true"]) == 0
+        assert capsys.readouterr().out.rstrip().endswith("passes")
+
+    def test_rollout_arguments_are_refused_with_check(self, capsys):
+        assert evaluate.main(["ckpt=x.npz", "check=true", "vx=1.0", "seconds=5"]) == 2
+        err = capsys.readouterr().err
+        assert "check=true" in err and "seconds, vx" in err
+
+    def test_a_bad_check_value_is_refused_naming_the_key(self, capsys):
+        assert evaluate.main(["ckpt=x.npz", "check=perhaps"]) == 2
+        assert "check" in capsys.readouterr().err
