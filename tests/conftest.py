@@ -23,14 +23,21 @@ jax.config.update("jax_include_full_tracebacks_in_locations", False)
 
 
 # The costliest groups (minutes of tracing and compiling each) go first, so that the two xdist
-# workers start on them and finish together; the rest is seconds-long tests that fill the gaps.
+# workers start on them and finish together; then the groups of one robot's MJX compile each; the
+# rest is seconds-long tests that fill the gaps. pyproject's `--no-loadscope-reorder` makes xdist
+# hand out the groups in this order (by default it sorts them by their number of tests, which put
+# the 3-minute mit_to_xbot group near the end and left one worker idle for minutes).
 _FIRST = ("xbot_to_all", "smoke_go2_to_xbot", "mit_to_xbot")
+_COMPILE_GROUPS = ("walk_", "closing_noise", "go2_step", "sim_to_sim")
 
 
 def pytest_collection_modifyitems(config, items):
     def rank(item):
         groups = [m.args[0] for m in item.iter_markers("xdist_group") if m.args]
-        return min((_FIRST.index(g) for g in groups if g in _FIRST), default=len(_FIRST))
+        first = min((_FIRST.index(g) for g in groups if g in _FIRST), default=None)
+        if first is not None:
+            return first
+        return len(_FIRST) + (0 if any(g.startswith(_COMPILE_GROUPS) for g in groups) else 1)
 
     items.sort(key=rank)  # stable: the order within a rank is kept
 

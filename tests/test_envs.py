@@ -96,6 +96,7 @@ class TestGo2Observation:
         np.testing.assert_allclose(np.asarray(tau), np.asarray(go2_env._torque_limit))
 
 
+@pytest.mark.xdist_group("go2_step")  # one worker, so the class fixture compiles once
 class TestAutoReset:
     """Both tests step one Go2 env with the same compiled step (one MJX compile)."""
 

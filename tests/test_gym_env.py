@@ -72,6 +72,7 @@ def mjx_state_like(gym_env):
 # suite within 15 minutes; Go2's stays in, and XBot-L's sim-to-sim path is also exercised by
 # `evaluate sim=mujoco`.
 @pytest.mark.parametrize("robot", ["go2", pytest.param("xbot_l", marks=pytest.mark.slow)])
+@pytest.mark.xdist_group("sim_to_sim")  # scheduled early with the other one-compile groups (conftest)
 class TestSimToSimAgreement:
     """MJX (float32) and MuJoCo C (float64) step the same model with the same solver settings.
     Over the first 10 control steps of an open-loop action sequence they agree within these
