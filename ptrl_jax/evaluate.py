@@ -76,8 +76,8 @@ def check_verdict(check: WalkingCheck, result: Mapping[str, Any]) -> dict[str, A
         reasons.append(f"fell at {result['time_survived_s']:.2f} s")
     error = result["forward_speed_error"]
     if not error <= check.max_speed_error:  # NaN (no step survived) fails too
-        reasons.append(f"forward speed {result['mean_velocity'][0]:.3f} m/s, {error:.3f} from the command "
-                       f"(at most {check.max_speed_error})")
+        reasons.append(f"forward speed {result['mean_velocity'][0]:.3f} m/s, {error:.3f} m/s off the command, "
+                       f"tolerance {check.max_speed_error}")
     return {"check": check.name, "command": list(check.command), "passed": not reasons,
             "why_not": "; ".join(reasons), **{k: result[k] for k in ("fell", "time_survived_s", "mean_velocity",
                                                                      "forward_speed_error")}}
