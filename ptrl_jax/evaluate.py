@@ -83,17 +83,15 @@ def check_verdict(check: WalkingCheck, result: Mapping[str, Any]) -> dict[str, A
                                                                      "forward_speed_error")}}
 
 
-def run_walking_check(policy: Mapping[str, Any], seed: int = 0, sim: str = "mjx",
-                      evaluate: Callable[..., dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+def run_walking_check(policy: Mapping[str, Any], seed: int = 0, sim: str = "mjx") -> list[dict[str, Any]]:
     """Every check of the policy's robot family, each a deterministic rollout (mean action, no
     initial noise, no randomization); one verdict per check."""
-    evaluate = evaluate_policy if evaluate is None else evaluate
     verdicts = []
     for check in walking_checks(policy["robot"]):
-        result = evaluate(robot=policy["robot"], env_cfg=policy["env"], params=policy["params"],
-                          normalizer=policy["normalizer"], network=policy["network"], command=check.command,
-                          seconds=check.seconds, seed=seed, sim=sim,
-                          normalize_observations=policy["normalize_observations"])
+        result = evaluate_policy(robot=policy["robot"], env_cfg=policy["env"], params=policy["params"],
+                                 normalizer=policy["normalizer"], network=policy["network"], command=check.command,
+                                 seconds=check.seconds, seed=seed, sim=sim,
+                                 normalize_observations=policy["normalize_observations"])
         verdicts.append(check_verdict(check, result))
     return verdicts
 

@@ -109,7 +109,7 @@ class TestWalkingChecksPerFamily:
             assert [(c.name, c.command) for c in checks] == [("stand", (0.0, 0.0, 0.0)), ("walk", (0.3, 0.0, 0.0))]
             assert all(c.seconds == 20.0 and c.max_speed_error == 0.15 for c in checks)
 
-    def test_each_check_is_a_deterministic_rollout_of_its_command(self):
+    def test_each_check_is_a_deterministic_rollout_of_its_command(self, monkeypatch):
         calls = []
 
         def fake_evaluate(**kw):
@@ -118,7 +118,8 @@ class TestWalkingChecksPerFamily:
 
         policy = {"robot": "cassie", "env": "ENV", "params": "P", "normalizer": "N", "network": "NET",
                   "normalize_observations": True}
-        verdicts = evaluate.run_walking_check(policy, seed=3, evaluate=fake_evaluate)
+        monkeypatch.setattr(evaluate, "evaluate_policy", fake_evaluate)
+        verdicts = evaluate.run_walking_check(policy, seed=3)
         assert [c["command"] for c in calls] == [(0.0, 0.0, 0.0), (0.3, 0.0, 0.0)]
         assert all(c["seconds"] == 20.0 and c["seed"] == 3 and "stochastic" not in c for c in calls)
         assert [v["passed"] for v in verdicts] == [True, True]
