@@ -41,11 +41,9 @@ def check_transfer(run_dir, target_file_prefix, target_robot):
     assert both["meta"]["robot"] == target_robot
 
 
-# Slow (left out of the default run; `pytest -m slow` runs it): eight MJX pipelines in one program
-# take 8.5 to 10.5 min of one core to trace and compile, and with it the suite measured 15 min 56 s
-# on a fresh clone (2026-11-22), over its 15-minute budget. Its compile is about linear in the
-# program's size and mostly the MJX step (BENCHMARKS.md, "Where the xbot_to_all smoke compile goes").
-@pytest.mark.slow
+# The costliest test program: eight MJX pipelines in one program, about 6 min of one core to
+# trace and compile (BENCHMARKS.md, "Where the xbot_to_all smoke compile goes"). tests/conftest.py
+# hands its group out first, so one xdist worker builds it while the other runs the rest.
 @pytest.mark.xdist_group("xbot_to_all")
 class TestXBotToAll:
     @pytest.fixture(scope="class")
