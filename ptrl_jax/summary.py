@@ -127,19 +127,24 @@ def format_ratio_table(rows: Sequence[Mapping[str, Any]], png: str) -> str:
 
 def plot_curves(
     path: Path, curves: Mapping[str, Mapping[str, np.ndarray]], title: str, source_curve=()
-) -> None:
-    """Target reward per preset (mean and spread over seeds), and the source curve beside it."""
+) -> list:
+    """Target reward per preset (mean and spread over seeds), and the source curve beside it.
+    Without a source curve (a loaded source, or scratch only) the target panel stands alone.
+    Returns the figure's axes (the target's last)."""
     from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
 
-    fig = Figure(figsize=(11, 4.2))
-    ax_src, ax = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.6]})
     if source_curve:
+        fig = Figure(figsize=(11, 4.2))
+        ax_src, ax = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.6]})
         xs, ys = zip(*source_curve)
         ax_src.plot(np.array(xs) / 1e6, ys, color="k")
-    ax_src.set_xlabel("source env steps (millions)")
-    ax_src.set_ylabel("mean episode reward")
-    ax_src.set_title("source (SLRT)")
-    ax_src.grid(alpha=0.3)
+        ax_src.set_xlabel("source env steps (millions)")
+        ax_src.set_ylabel("mean episode reward")
+        ax_src.set_title("source (SLRT)")
+        ax_src.grid(alpha=0.3)
+    else:
+        fig = Figure(figsize=(7, 4.2))
+        ax = fig.subplots()
     for preset, c in curves.items():
         x = c["env_steps"] / 1e6
         mean, std = c["reward"].mean(axis=0), c["reward"].std(axis=0)
@@ -153,6 +158,7 @@ def plot_curves(
     ax.legend(title="freeze preset")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+    return fig.axes
 
 
 def format_report(

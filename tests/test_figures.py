@@ -72,3 +72,26 @@ class TestFigures:
     def test_filmstrip_png(self, tmp_path):
         save_filmstrip(tmp_path / "f.png", records(), "go2", frames=4)
         assert (tmp_path / "f.png").read_bytes()[:8] == PNG
+
+
+class TestTrainingCurves:
+    """``summary.plot_curves``: the run's curves.png, with and without a source curve."""
+
+    CURVES = {p: {"env_steps": np.array([100.0, 200.0, 300.0]), "reward": np.array([[1.0, 2.0, 3.0], [1.5, 2.5, 3.5]])}
+              for p in ("none", "scratch")}
+
+    def test_source_panel_beside_the_targets(self, tmp_path):
+        from ptrl_jax import summary
+
+        axes = summary.plot_curves(tmp_path / "c.png", self.CURVES, "t", [(0, 0.0), (10, 1.0)])
+        assert len(axes) == 2 and axes[0].get_title() == "source (SLRT)"
+        assert len(axes[1].get_lines()) == 2  # one mean line per preset
+        assert (tmp_path / "c.png").read_bytes()[:8] == PNG
+
+    def test_no_empty_source_panel_without_a_source(self, tmp_path):
+        # a loaded source (source_checkpoint) or scratch-only runs have no source curve
+        from ptrl_jax import summary
+
+        axes = summary.plot_curves(tmp_path / "c.png", self.CURVES, "t")
+        assert len(axes) == 1 and axes[0].get_xlabel() == "target env steps (millions)"
+        assert (tmp_path / "c.png").read_bytes()[:8] == PNG
