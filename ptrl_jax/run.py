@@ -142,6 +142,15 @@ class Progress:
             bar.close()
 
 
+def interpolated_times_note(slice_iterations: int) -> str:
+    """Report note for runs without the progress callback: ``Progress.record_slice`` then stamps
+    each iteration of a slice at an even share of the slice's time, source and target alike, so
+    the per-stage wall times (and wall time to threshold) are estimates, not measurements."""
+    return (f"Progress was off: wall times are spread evenly over the iterations of each call of "
+            f"{slice_iterations} iterations (source and target alike), so stage wall times and wall "
+            f"time to threshold are estimates within a call; env steps are exact")
+
+
 def metric_rows(
     cfg: ExperimentConfig, out: ProgramOutput, times: dict, stage_start: dict | None = None
 ) -> list[dict[str, Any]]:
@@ -405,6 +414,8 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     out = program.output(state)
     notes = [f"Compile {compile_s:.1f} s, run {run_s:.1f} s on {jax.devices()[0].platform.upper()} "
              f"({jax.device_count()} device)" + (" (resumed)" if resume_from else "")]
+    if not show and budget > 1:
+        notes.append(interpolated_times_note(int(budget)))
     result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start)
     (run_dir / RESUME_STATE).unlink(missing_ok=True)  # finished: the final checkpoints replace it
     result.update({"run_dir": run_dir, "compile_s": compile_s, "run_s": run_s, "output": out,

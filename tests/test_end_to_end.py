@@ -28,6 +28,8 @@ class TestSmokeRunOutputs:
             assert (run_dir / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         resolved = yaml.safe_load((run_dir / "config.yaml").read_text())
         assert resolved["target"]["robot"] == "xbot_l" and resolved["scale"] == "smoke"
+        # checkpoint_every=1: one iteration per call, so each wall time is a measured stamp
+        assert "Progress was off" not in (run_dir / "report.md").read_text()
 
     def test_metrics_rows_and_columns(self, smoke_run):
         cfg, run_dir = smoke_run

@@ -83,6 +83,9 @@ class TestMITToXBot:
         assert {"config.yaml", "metrics.csv", "curves.png", "report.md", "source.npz"} <= names
         assert {f"target_{p}_seed0.npz" for p in PRESETS} <= names
         check_transfer(run_dir, "target_", "xbot_l")
+        # progress off and one call of all iterations (checkpoint_every=0): the report says its
+        # wall times are spread over the call, not measured per iteration
+        assert "Progress was off: wall times are spread evenly" in (run_dir / "report.md").read_text()
         src = artifacts.load_checkpoint(run_dir / "source.npz")
         assert src["meta"]["robot"] == "mit_humanoid"
         assert src["params"]["actor"]["layer_3"]["w"].shape[1] == 10  # MIT Humanoid: 10 joints
