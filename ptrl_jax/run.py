@@ -69,6 +69,9 @@ class Progress:
         self.times: dict[tuple[str, int, int], float] = {}
         self.stage_start: dict[str, float] = {}
         self.counts = {"source": 0, "target": 0}
+        self.spread_over = 0
+        """Most iterations one call ran whose stamps ``record_slice`` had to spread (0: every
+        stamp was measured by the callback or covers one iteration)."""
         self.bars: dict[str, Any] = {}
         self.t0 = time.monotonic()
 
@@ -89,6 +92,8 @@ class Progress:
         t_end = time.monotonic() - self.t0
         done = [("source", i) for i in range(before[0] + 1, after[0] + 1)]
         done += [("target", i) for i in range(before[1] + 1, after[1] + 1)]
+        if any((stage, 0, it) not in self.times for stage, it in done):
+            self.spread_over = max(self.spread_over, len(done))
         for k, (stage, it) in enumerate(done):
             t = t_start + (t_end - t_start) * (k + 1) / len(done)
             runs = range(self.n_targets) if stage == "target" else (0,)
@@ -144,10 +149,10 @@ class Progress:
 
 def interpolated_times_note(slice_iterations: int) -> str:
     """Report note for runs without the progress callback: ``Progress.record_slice`` then stamps
-    each iteration of a slice at an even share of the slice's time, source and target alike, so
+    each iteration of a call at an even share of the call's time, source and target alike, so
     the per-stage wall times (and wall time to threshold) are estimates, not measurements."""
-    return (f"Progress was off: wall times are spread evenly over the iterations of each call of "
-            f"{slice_iterations} iterations (source and target alike), so stage wall times and wall "
+    return (f"Progress was off: wall times are spread evenly over the iterations of each call (up to "
+            f"{slice_iterations} iterations, source and target alike), so stage wall times and wall "
             f"time to threshold are estimates within a call; env steps are exact")
 
 
@@ -414,8 +419,8 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     out = program.output(state)
     notes = [f"Compile {compile_s:.1f} s, run {run_s:.1f} s on {jax.devices()[0].platform.upper()} "
              f"({jax.device_count()} device)" + (" (resumed)" if resume_from else "")]
-    if not show and budget > 1:
-        notes.append(interpolated_times_note(int(budget)))
+    if progress.spread_over > 1:
+        notes.append(interpolated_times_note(progress.spread_over))
     result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start)
     (run_dir / RESUME_STATE).unlink(missing_ok=True)  # finished: the final checkpoints replace it
     result.update({"run_dir": run_dir, "compile_s": compile_s, "run_s": run_s, "output": out,

@@ -8,6 +8,7 @@ import envs
 from ptrl_jax.evaluate import parse_schedule, rollout_mjx
 from ptrl_jax.figures import (FIG6_SCHEDULE, frame_steps, plot_velocity_tracking, render_frames, save_filmstrip,
                               schedule_commands)
+from ptrl_jax import summary
 from ptrl_jax.overrides import ConfigError
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -81,8 +82,6 @@ class TestTrainingCurves:
               for p in ("none", "scratch")}
 
     def test_source_panel_beside_the_targets(self, tmp_path):
-        from ptrl_jax import summary
-
         axes = summary.plot_curves(tmp_path / "c.png", self.CURVES, "t", [(0, 0.0), (10, 1.0)])
         assert len(axes) == 2 and axes[0].get_title() == "source (SLRT)"
         assert len(axes[1].get_lines()) == 2  # one mean line per preset
@@ -90,8 +89,6 @@ class TestTrainingCurves:
 
     def test_no_empty_source_panel_without_a_source(self, tmp_path):
         # a loaded source (source_checkpoint) or scratch-only runs have no source curve
-        from ptrl_jax import summary
-
         axes = summary.plot_curves(tmp_path / "c.png", self.CURVES, "t")
         assert len(axes) == 1 and axes[0].get_xlabel() == "target env steps (millions)"
         assert (tmp_path / "c.png").read_bytes()[:8] == PNG

@@ -69,6 +69,29 @@ class TestProgressWithoutSourceStage:
         assert progress.stage_start["target"] == 0.0 and (("target", 0, 0) in progress.times)
 
 
+class TestProgressSpreadStamps:
+    """``Progress.spread_over``: how many iterations a call ran whose wall times were spread
+    evenly rather than stamped by the callback (the report says so when it is over one)."""
+
+    def test_a_call_of_three_iterations_without_callbacks_is_spread(self):
+        cfg = load_experiment("go2_to_xbot", ["scale=smoke"])
+        progress = Progress(cfg, show=False)
+        progress.start()
+        progress.record_slice((0, 0), (2, 1), 0.0)  # two source iterations and one target
+        assert progress.spread_over == 3
+        assert progress.times[("source", 0, 1)] < progress.times[("source", 0, 2)] <= progress.times[("target", 0, 1)]
+
+    def test_stamps_from_the_callback_are_not_spread(self):
+        cfg = load_experiment("go2_to_xbot", ["scale=smoke"])
+        progress = Progress(cfg, show=True)
+        progress.start()
+        for it in (1, 2):
+            progress.hook("source")({"run_id": 0, "iteration": it, "episode_reward": 1.0})
+        progress.record_slice((0, 0), (2, 0), 0.0)
+        progress.close()
+        assert progress.spread_over == 0
+
+
 class _Stage(NamedTuple):  # the fields of a TrainState that checkpoints hold
     params: dict
     normalizer: dict
