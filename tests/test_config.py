@@ -109,3 +109,15 @@ class TestPresets:
     def test_bad_extra_targets_are_refused(self, arg, message):
         with pytest.raises(ConfigError, match=message):
             load_experiment("go2_to_xbot", arg.split())
+
+
+class TestBipedFromScratch:
+    @pytest.mark.parametrize("robot", ["xbot_l", "mit_humanoid", "cassie", "tron1"])
+    def test_trains_the_target_alone_with_its_ppo_settings(self, robot):
+        cfg = load_experiment("biped_from_scratch", [f"target.robot={robot}"])
+        assert list(cfg.targets) == [robot]
+        assert cfg.freeze_presets == ("scratch",) and not cfg.trains_source
+        ppo = cfg.target.ppo
+        assert (ppo.entropy_coef, ppo.num_epochs, ppo.desired_kl) == (0.001, 2, 0.02)
+        assert (ppo.num_envs, ppo.num_iterations) == (512, 700)
+        assert (ppo.gamma, ppo.gae_lambda, ppo.clip_epsilon) == (0.998, 0.95, 0.2)  # the paper's
