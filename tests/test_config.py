@@ -3,6 +3,9 @@
 
 import pytest
 
+import envs
+from envs.biped import BipedEnv
+
 from ptrl_jax import run as run_cli
 from ptrl_jax.overrides import ConfigError, load_experiment
 
@@ -112,7 +115,7 @@ class TestPresets:
 
 
 class TestBipedFromScratch:
-    @pytest.mark.parametrize("robot", ["xbot_l", "mit_humanoid", "cassie", "tron1"])
+    @pytest.mark.parametrize("robot", [r for r in envs.robot_names() if envs.family(r) is BipedEnv])
     def test_trains_the_target_alone_with_its_ppo_settings(self, robot):
         cfg = load_experiment("biped_from_scratch", [f"target.robot={robot}"])
         assert list(cfg.targets) == [robot]
