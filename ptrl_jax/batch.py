@@ -6,6 +6,12 @@ for all of them under ``overrides:`` and per scale under ``scales:``, and the ta
 a normal run in ``runs/table4/<stamp>/<experiment>/`` and writes ``table4.csv`` and
 ``table4.md`` beside them, rewritten after each experiment so a later failure loses nothing.
 
+Two tables (``table:``):
+- ``table4``: paper Table IV, time to threshold with transfer and from scratch
+  (``transfer_table.py``);
+- ``walking_checks``: after each experiment, the walking check of the robot's family on every
+  scratch checkpoint (``walking_table.py``; ``exp=from_scratch``, issue 3's per-robot table).
+
 Command-line keys apply to every experiment of the batch, and ``<experiment>.<key>=value`` to
 that one only; ``batch=[a,b]`` replaces the list of experiments (``go2_to_xbot.source_checkpoint=runs/.../source.npz``). Every experiment's config
 is built and validated before the first one starts.
@@ -16,11 +22,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
-from ptrl_jax import artifacts, transfer_table
+from ptrl_jax import artifacts, transfer_table, walking_table
 from ptrl_jax.config import SCALES, ExperimentConfig
 from ptrl_jax.overrides import ConfigError, flatten, load_experiment, read_preset
 
 BATCH_KEYS = ("batch", "overrides", "scales", "table", "transfer_preset")
+TABLES = ("table4", "walking_checks")
+"""What a batch can build: paper Table IV, or the walking checks of its scratch runs."""
 
 
 def is_batch(exp: str) -> bool:
@@ -43,7 +51,10 @@ def batch_configs(exp: str, cli: Mapping[str, Any]) -> tuple[dict[str, Experimen
     scale = str(cli.pop("scale", "cpu"))
     if scale not in SCALES:
         raise ConfigError(f"scale must be one of {SCALES}, got {scale!r}")
-    settings = {"name": Path(exp).stem, "scale": scale, "table": spec.get("table", "table4"),
+    table = spec.get("table", "table4")
+    if table not in TABLES:
+        raise ConfigError(f"batch preset {exp}: table={table!r} is not one of {list(TABLES)}")
+    settings = {"name": Path(exp).stem, "scale": scale, "table": table,
                 "transfer_preset": str(cli.pop("transfer_preset", spec.get("transfer_preset", "L2"))),
                 "runs_dir": str(cli.pop("runs_dir", "runs"))}
     shared = {**flatten(spec.get("overrides") or {}), **flatten((spec.get("scales") or {}).get(scale) or {})}
@@ -62,16 +73,22 @@ def batch_configs(exp: str, cli: Mapping[str, Any]) -> tuple[dict[str, Experimen
             cfg = load_experiment(child, overrides)
         except ConfigError as e:
             raise ConfigError(f"{exp} -> {child}: {e}") from None
-        if "scratch" not in cfg.variants or settings["transfer_preset"] not in cfg.variants:
+        if table == "walking_checks":
+            if "scratch" not in cfg.variants:
+                raise ConfigError(f"{exp} -> {child}: the walking-check table checks the 'scratch' runs; "
+                                  f"the variants are {list(cfg.variants)}")
+        elif "scratch" not in cfg.variants or settings["transfer_preset"] not in cfg.variants:
             raise ConfigError(f"{exp} -> {child}: the table compares 'scratch' with transfer_preset="
                               f"{settings['transfer_preset']!r}; the variants are {list(cfg.variants)}")
         configs[child] = cfg
     return configs, settings
 
 
-def run_batch(exp: str, cli: Mapping[str, Any], show_progress: bool | None = None) -> dict[str, Any]:
+def run_batch(exp: str, cli: Mapping[str, Any], show_progress: bool | None = None,
+              checker: walking_table.Checker | None = None) -> dict[str, Any]:
     """Run every experiment of the batch in turn and build its table. Returns the batch folder,
-    the table rows and each experiment's run result."""
+    the table (``table_path``), its rows and each experiment's run result. ``checker`` replaces
+    the MJX walking check of a ``walking_checks`` table (tests)."""
     from ptrl_jax.run import new_run_dir, run
 
     configs, settings = batch_configs(exp, cli)
@@ -83,12 +100,44 @@ def run_batch(exp: str, cli: Mapping[str, Any], show_progress: bool | None = Non
         results[child] = result
         if result["interrupted"]:
             break
-        table_rows += transfer_table.experiment_rows(
-            child, result["rows"], settings["transfer_preset"], cfg.report.threshold_fraction,
-            cfg.report.final_window, source=cfg.source.robot)
-        write_table(batch_dir, settings, configs, table_rows)
-    return {"run_dir": batch_dir, "rows": table_rows, "results": results,
-            "interrupted": any(r["interrupted"] for r in results.values())}
+        if settings["table"] == "walking_checks":
+            table_rows += walking_table.experiment_rows(
+                child, result["rows"], result["run_dir"], checker or mjx_walking_check, cfg.report.final_window,
+                compile_s=result["compile_s"], train_s=result["run_s"])
+            write_walking_table(batch_dir, settings, configs, table_rows)
+        else:
+            table_rows += transfer_table.experiment_rows(
+                child, result["rows"], settings["transfer_preset"], cfg.report.threshold_fraction,
+                cfg.report.final_window, source=cfg.source.robot)
+            write_table(batch_dir, settings, configs, table_rows)
+    return {"run_dir": batch_dir, "table_path": batch_dir / f"{settings['table']}.md", "rows": table_rows,
+            "results": results, "interrupted": any(r["interrupted"] for r in results.values())}
+
+
+def mjx_walking_check(checkpoint: Path) -> list[dict[str, Any]]:
+    """The family's walking check (deterministic 20 s MJX rollouts) of one checkpoint."""
+    from ptrl_jax import evaluate
+
+    return evaluate.run_walking_check(evaluate.policy_from_checkpoint(str(checkpoint)))
+
+
+def write_walking_table(batch_dir: Path, settings: Mapping[str, Any], configs: Mapping[str, ExperimentConfig],
+                        rows: list[dict[str, Any]]) -> None:
+    name = settings["table"]
+    artifacts.write_metrics_csv(batch_dir / f"{name}.csv",
+                                [{k: r.get(k, "") for k in walking_table.FIELDS} for r in rows])
+    notes = [
+        f"Scale {settings['scale']}: " + "; ".join(
+            f"{c}: {', '.join(cfg.targets)}, {cfg.target.ppo.num_iterations} it x "
+            f"{cfg.target.ppo.env_steps_per_iteration} steps, {cfg.seeds} seed(s)" for c, cfg in configs.items()),
+        "Checks: deterministic 20 s MJX rollouts (mean action, no initial noise, no randomization); quadrupeds "
+        "walk at vx 0.5, bipeds stand at vx 0 and walk at vx 0.3; a rollout passes with no fall and a mean "
+        "forward speed within 0.15 m/s of the command (`python -m ptrl_jax.evaluate ckpt=... check=true`)",
+        "Final reward: mean episode reward over the last iterations (report.final_window); compile and "
+        "training times are each experiment's own (one robot per program)",
+        "Experiments: " + ", ".join(f"[{c}]({c}/report.md)" for c in configs),
+    ]
+    artifacts.atomic_write_text(batch_dir / f"{name}.md", walking_table.format_markdown(rows, notes))
 
 
 def write_table(batch_dir: Path, settings: Mapping[str, Any], configs: Mapping[str, ExperimentConfig],

@@ -474,7 +474,7 @@ def main(argv: list[str] | None = None) -> int:
         if batch.is_batch(exp):  # several experiments and one table (exp=table4)
             result = batch.run_batch(exp, args)
             print(f"batch folder: {result['run_dir']}")
-            table = result["run_dir"] / "table4.md"
+            table = result["table_path"]
             if table.is_file():
                 print(table.read_text())
             return 130 if result["interrupted"] else 0
