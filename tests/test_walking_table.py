@@ -40,7 +40,10 @@ class TestFromScratchPresets:
         assert it("anymal_b") == (120, 20) and it("anymal_c") == (180, 60) and it("go2") == (180, 30)
         assert load_experiment("a1_from_scratch").network.init_noise_std == 1.0
         assert load_experiment("go2_from_scratch").network.init_noise_std == 0.5
-        assert it("cassie") == (500, 0) and it("xbot_l") == (700, 0)
+        assert it("cassie") == (500, 0) and it("xbot_l") == (700, 0) and it("mit_humanoid") == (800, 0)
+        mit = load_experiment("mit_humanoid_from_scratch").targets["mit_humanoid"].env.commands
+        assert (mit.lin_vel_x, mit.lin_vel_y) == ((0.0, 0.6), (-0.2, 0.2))  # forward only
+        assert load_experiment("cassie_from_scratch").targets["cassie"].env.commands == envs.default_config("cassie").commands
 
     def test_the_batch_lists_every_robot_once(self):
         configs, settings = batch_configs("from_scratch", {"scale": "smoke"})
