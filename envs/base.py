@@ -35,7 +35,7 @@ from brax import math
 from brax.envs.base import PipelineEnv, State
 from brax.io import mjcf
 
-from envs import randomization
+from envs import randomization, semantics
 from envs.randomization import RandomizationConfig
 
 ASSETS_DIR = Path(__file__).resolve().parents[1] / "assets"
@@ -110,6 +110,11 @@ class LocomotionConfig:
     """Velocity command sampling."""
     randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
     """Domain randomization (``envs.randomization``); off unless enabled."""
+    joint_roles: tuple[str, ...] = ()
+    """Each actuated joint's role, ``"<limb>:<kind>"`` in actuator order (``envs.semantics``:
+    limbs FL FR RL RR or L R; kinds hip_roll, hip_yaw, hip_pitch, knee, tarsus, ankle_pitch,
+    ankle_roll). The semantic transfer maps joints of two robots by role; the sign of each
+    joint's axis is read from the model. Empty: the robot takes no part in semantic transfers."""
 
     def __post_init__(self):
         if self.sim_dt <= 0 or self.decimation < 1:
@@ -195,8 +200,20 @@ class LeggedEnv(PipelineEnv):
         self._joint_upper = jnp.asarray(hi, jnp.float32)
         self._base_body = int(mj_model.jnt_bodyid[0])  # the free joint's body
         self._reward_weights: Mapping[str, float] = dataclasses.asdict(config.rewards)  # type: ignore[attr-defined]
+        self.joint_names = [mj_model.joint(j).name for j in range(1, mj_model.njnt)]
+        self.joint_roles = (semantics.parse_roles(config.joint_roles, self.joint_names, config.asset)
+                            if config.joint_roles else ())
+        self.joint_signs = (semantics.joint_axis_signs(mj_model, self.joint_roles)
+                            if self.joint_roles else None)
 
     # ----- to be provided by a family -------------------------------------------------------
+    family_name = "legged"
+    """The family's name; entries that only compare within a family (base height) carry it."""
+
+    def observation_blocks(self) -> dict[str, list[semantics.ObsBlock]]:
+        """What each entry of each observation key means, in ``_observe``'s order."""
+        raise NotImplementedError
+
     def _init_family_info(self, data: Any, rng: jax.Array) -> dict:
         return {}
 

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 from brax import math
 
+from envs import semantics
 from envs.base import CommandConfig, LeggedEnv, LocomotionConfig
 from envs.randomization import RandomizationConfig
 
@@ -139,6 +140,8 @@ XBOT_L_CONFIG = BipedConfig(
     # enables it.
     randomization=RandomizationConfig(friction=(0.1, 2.0), added_base_mass=(-5.0, 5.0),
                                       push_interval_s=4.0, max_push_vel=0.2),
+    joint_roles=("L:hip_roll", "L:hip_yaw", "L:hip_pitch", "L:knee", "L:ankle_pitch", "L:ankle_roll",
+                 "R:hip_roll", "R:hip_yaw", "R:hip_pitch", "R:knee", "R:ankle_pitch", "R:ankle_roll"),
 )
 
 
@@ -168,6 +171,8 @@ MIT_HUMANOID_CONFIG = BipedConfig(
     swing_signs=(-1.0, 1.0, -1.0, -1.0, 1.0, -1.0),
     hip_yaw_roll_joints=(0, 1, 5, 6),
     commands=BIPED_COMMANDS,
+    joint_roles=("L:hip_yaw", "L:hip_roll", "L:hip_pitch", "L:knee", "L:ankle_pitch",
+                 "R:hip_yaw", "R:hip_roll", "R:hip_pitch", "R:knee", "R:ankle_pitch"),
 )
 
 # Cassie as legged_gym's 12-DOF open tree (cassie_config.py, FACTS §6(b)): 50 Hz, action_scale
@@ -197,6 +202,8 @@ CASSIE_CONFIG = BipedConfig(
     swing_gains=(1.0, 1.0, 1.0, 1.0),
     hip_yaw_roll_joints=(0, 1, 6, 7),
     commands=BIPED_COMMANDS,
+    joint_roles=("L:hip_roll", "L:hip_yaw", "L:hip_pitch", "L:knee", "L:tarsus", "L:ankle_pitch",
+                 "R:hip_roll", "R:hip_yaw", "R:hip_pitch", "R:knee", "R:tarsus", "R:ankle_pitch"),
 )
 
 # TRON1 point foot (PF_TRON1A), after tron1-rl-isaacgym pointfoot_flat_config.py (FACTS §9):
@@ -226,11 +233,43 @@ TRON1_CONFIG = BipedConfig(
     swing_gains=(1.0, 2.0, 1.0, 2.0),
     hip_yaw_roll_joints=(0, 3),  # abad only: TRON1 has no hip yaw
     commands=BIPED_COMMANDS,
+    joint_roles=("L:hip_roll", "L:hip_pitch", "L:knee", "R:hip_roll", "R:hip_pitch", "R:knee"),
 )
 
 
 class BipedEnv(LeggedEnv):
     config: BipedConfig
+    family_name = "biped"
+
+    def _frame_blocks(self, frame: int) -> list[semantics.ObsBlock]:
+        joints = range(self.num_joints)
+        suffix = f"[t-{frame}]" if frame else ""
+        blocks = [
+            semantics.block("gait_clock", "clock", ("sin", "cos"), 1.0),
+            semantics.block("command", "command", ("vx", "vy", "yaw"), (2.0, 2.0, 1.0)),
+            semantics.block("joint_pos", "joint_pos", joints, 1.0),
+            semantics.block("joint_vel", "joint_vel", joints, 0.05),
+            semantics.block("last_action", "last_action", joints, 1.0 / self.config.action_scale),
+            semantics.block("base_ang_vel", "ang_vel", "xyz", 1.0),
+            semantics.ObsBlock("base_euler", (
+                semantics.ObsEntry("tilt", "roll"), semantics.ObsEntry("tilt", "pitch"),
+                semantics.ObsEntry("heading", "yaw"))),
+        ]
+        return [semantics.ObsBlock(b.name + suffix, tuple(e._replace(frame=frame) for e in b.entries))
+                for b in blocks]
+
+    def observation_blocks(self):
+        """The layout ``_observe`` writes (module docstring): the actor's frames oldest first."""
+        state = [b for age in reversed(range(self.config.frame_stack)) for b in self._frame_blocks(age)]
+        privileged = [
+            *self._frame_blocks(0),
+            semantics.block("base_lin_vel", "lin_vel", "xyz", 2.0),
+            semantics.block("base_height", "height", (self.family_name,), 1.0),
+            semantics.block("stance", "stance", ("L", "R"), 1.0),
+            semantics.block("foot_contact", "contact", ("L", "R"), 1.0),
+            semantics.block("joint_ref_err", "joint_ref_err", range(self.num_joints), 1.0),
+        ]
+        return {"state": state, "privileged_state": privileged}
 
     def __init__(self, config: BipedConfig, **kwargs):
         super().__init__(config, **kwargs)

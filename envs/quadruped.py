@@ -19,9 +19,13 @@ from dataclasses import dataclass, field
 import jax
 import jax.numpy as jnp
 
+from envs import semantics
 from envs.base import CommandConfig, LeggedEnv, LocomotionConfig
 
 FOOT_NAMES = ("FL", "FR", "RL", "RR")
+
+# Every quadruped here: per leg hip abduction (x axis), thigh (hip pitch) and calf (knee).
+QUADRUPED_ROLES = tuple(f"{leg}:{kind}" for leg in FOOT_NAMES for kind in ("hip_roll", "hip_pitch", "knee"))
 
 
 @dataclass(frozen=True)
@@ -85,6 +89,7 @@ GO2_CONFIG = QuadrupedConfig(
     foot_radius=0.022,
     base_height_target=0.25,
     commands=CommandConfig(lin_vel_x=(-1.0, 1.0), lin_vel_y=(-1.0, 1.0), yaw_rate=(-1.0, 1.0)),
+    joint_roles=QUADRUPED_ROLES,
 )
 
 A1_CONFIG = QuadrupedConfig(
@@ -100,6 +105,7 @@ A1_CONFIG = QuadrupedConfig(
     foot_radius=0.02,
     base_height_target=0.25,
     commands=GO2_CONFIG.commands,
+    joint_roles=QUADRUPED_ROLES,
 )
 
 # ANYmal B and C: legged_gym's kp 80 / kd 2 and action scale 0.5, with a plain PD law (legged_gym
@@ -122,6 +128,7 @@ ANYMAL_B_CONFIG = QuadrupedConfig(
     base_height_target=0.5,
     rewards=_ANYMAL_REWARDS,
     commands=GO2_CONFIG.commands,
+    joint_roles=QUADRUPED_ROLES,
 )
 
 ANYMAL_C_CONFIG = dataclasses.replace(ANYMAL_B_CONFIG, asset="anymal_c.xml", foot_radius=0.03)
@@ -129,6 +136,30 @@ ANYMAL_C_CONFIG = dataclasses.replace(ANYMAL_B_CONFIG, asset="anymal_c.xml", foo
 
 class QuadrupedEnv(LeggedEnv):
     config: QuadrupedConfig
+    family_name = "quadruped"
+
+    def observation_blocks(self):
+        """The layout ``_observe`` writes (module docstring), entry by entry."""
+        joints = range(self.num_joints)
+        state = [
+            semantics.block("base_ang_vel", "ang_vel", "xyz", 0.25),
+            # Projected gravity: (sin pitch, -sin roll cos pitch, -cos roll cos pitch), so to first
+            # order x is the pitch angle and y minus the roll angle.
+            semantics.ObsBlock("projected_gravity", (
+                semantics.ObsEntry("tilt", "pitch", 1.0), semantics.ObsEntry("tilt", "roll", -1.0),
+                semantics.ObsEntry("gravity", "z", 1.0))),
+            semantics.block("joint_pos", "joint_pos", joints, 1.0),
+            semantics.block("joint_vel", "joint_vel", joints, 0.05),
+            semantics.block("command", "command", ("vx", "vy", "yaw"), (2.0, 2.0, 0.25)),
+            semantics.block("last_action", "last_action", joints, 1.0 / self.config.action_scale),
+        ]
+        privileged = [
+            *state,
+            semantics.block("base_lin_vel", "lin_vel", "xyz", 2.0),
+            semantics.block("base_height", "height", (self.family_name,), 1.0),
+            semantics.block("foot_contact", "contact", FOOT_NAMES, 1.0),
+        ]
+        return {"state": state, "privileged_state": privileged}
 
     def __init__(self, config: QuadrupedConfig, **kwargs):
         super().__init__(config, **kwargs)

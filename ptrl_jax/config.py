@@ -12,7 +12,7 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
-from ptrl_jax.freeze import FREEZE_PRESETS, ratio_name, variant
+from ptrl_jax.freeze import FREEZE_PRESETS, MODE_SEPARATOR, TRANSFER_MODES, ratio_name, variant, with_mode
 
 
 @dataclass(frozen=True)
@@ -185,6 +185,28 @@ class ReportConfig:
 
 
 @dataclass(frozen=True)
+class TransferConfig:
+    """How transferring variants initialise the target from the source (``transfer=semantic``
+    on the command line is short for ``transfer.mode=semantic``)."""
+
+    mode: str = "paper"
+    """``paper``: copy the actor's L1 and L2, everything else fresh (the paper's transfer).
+    ``semantic``: map the whole agent (input and output layers, log-std, normaliser, critic)
+    through the robots' declared observations and joint roles (``ptrl_jax.semantic``). A variant
+    named ``<preset>@semantic`` or ``<preset>@paper`` picks its own mode."""
+    joint_map: tuple[str, ...] = ()
+    """Overrides of the role-based joint pairs for semantic transfers, ``"<target joint>:<source
+    joint>"`` (``-<source joint>`` flips the sign, ``none`` leaves the joint unmapped)."""
+    unmapped_blocks: tuple[str, ...] = ()
+    """Target observation blocks (``foot_contact``, ``base_height``, ...) left unmapped by semantic
+    transfers: their input weights start at zero."""
+
+    def __post_init__(self):
+        if self.mode not in TRANSFER_MODES:
+            raise ValueError(f"transfer.mode must be one of {list(TRANSFER_MODES)}, got {self.mode!r}")
+
+
+@dataclass(frozen=True)
 class ExperimentConfig:
     """A PTRL experiment: train the source, transfer, fine-tune every target variant."""
 
@@ -210,6 +232,12 @@ class ExperimentConfig:
     """Continuous freeze ratios rho in [0, 1], run as more target variants beside
     ``freeze_presets`` (named ``rho<r>``): L1 and L2 transferred and the first ceil(rho n) output
     units of each frozen (``freeze.ratio_preset``)."""
+    transfer: TransferConfig = field(default_factory=TransferConfig)
+    """How transferring variants initialise the target (paper or semantic)."""
+    init_checkpoint: str = ""
+    """A target checkpoint to start every transferring variant from (``python -m
+    ptrl_jax.transfer`` writes one; any checkpoint of the target robot serves): no source is
+    trained or mapped, and ``scratch`` still starts fresh. One target robot only."""
     source_checkpoint: str = ""
     """A trained source (``source.npz`` of an earlier run) to transfer from instead of training
     one: the source stage is skipped, so ablations over target variants reuse one source."""
@@ -237,9 +265,18 @@ class ExperimentConfig:
             raise ValueError(f"seeds must be >= 1, got {self.seeds}")
         if not self.freeze_presets and not self.freeze_ratio:
             raise ValueError("freeze_presets and freeze_ratio are both empty: name at least one variant")
-        bad = [p for p in self.freeze_presets if p not in FREEZE_PRESETS]
+        bad = [p for p in self.freeze_presets if p.partition(MODE_SEPARATOR)[0] not in FREEZE_PRESETS]
         if bad:
-            raise ValueError(f"freeze_presets: unknown {bad}; choose from {list(FREEZE_PRESETS)}")
+            raise ValueError(f"freeze_presets: unknown {bad}; choose from {list(FREEZE_PRESETS)}, "
+                             f"optionally with {MODE_SEPARATOR}semantic or {MODE_SEPARATOR}paper")
+        for p in self.freeze_presets:
+            variant(p)  # a bad mode suffix names itself
+        if self.init_checkpoint and self.source_checkpoint:
+            raise ValueError("init_checkpoint and source_checkpoint exclude each other: the first starts "
+                             "the target from a transferred checkpoint, the second transfers from a source")
+        if self.init_checkpoint and self.extra_targets:
+            raise ValueError(f"init_checkpoint initialises one target robot; extra_targets={list(self.extra_targets)} "
+                             f"would need one each")
         out_of_range = [r for r in self.freeze_ratio if not 0.0 <= float(r) <= 1.0]
         if out_of_range:
             raise ValueError(f"freeze_ratio: {out_of_range} outside [0, 1] (the frozen fraction of L1 and L2)")
@@ -257,14 +294,22 @@ class ExperimentConfig:
     @property
     def variants(self) -> tuple[str, ...]:
         """Every target variant, in program order: the presets, then the freeze ratios."""
-        return (*self.freeze_presets, *(ratio_name(r) for r in self.freeze_ratio))
+        mode = self.transfer.mode
+        named = [variant(p).name if MODE_SEPARATOR in p else with_mode(p, mode) for p in self.freeze_presets]
+        return (*named, *(with_mode(ratio_name(r), mode) for r in self.freeze_ratio))
 
     @property
     def trains_source(self) -> bool:
         """Whether the program trains a source: not when it starts from ``source_checkpoint``, and
         not when no variant transfers (``freeze_presets=[scratch]``: each target robot trained
         from scratch alone, the per-robot runs of the README)."""
-        return not self.source_checkpoint and any(variant(v).transfer for v in self.variants)
+        return (not self.source_checkpoint and not self.init_checkpoint
+                and any(variant(v).transfer for v in self.variants))
+
+    @property
+    def semantic(self) -> bool:
+        """Whether any variant transfers semantically (the program then builds the map)."""
+        return any(variant(v).mode_index == 2 for v in self.variants)
 
     @property
     def source_iterations(self) -> int:

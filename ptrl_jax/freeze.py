@@ -29,16 +29,32 @@ from ptrl_jax.types import Mask, Params
 HIDDEN_LAYERS: dict[str, str] = {"L1": "layer_1", "L2": "layer_2"}
 
 
+TRANSFER_MODES = ("paper", "semantic")
+"""How a transferring variant initialises the target: ``paper`` copies the actor's L1 and L2
+(``transfer`` below); ``semantic`` maps the whole agent through the robots' declarations
+(``ptrl_jax.semantic``)."""
+MODE_SEPARATOR = "@"
+"""Variant names ``<preset>@semantic`` (``L2@semantic``, ``rho0.5@semantic``) transfer
+semantically; a bare name transfers as the paper does."""
+
+
 class FreezePreset:
     """What a target variant transfers and what it freezes: the first ``ceil(ratio * n)`` output
-    units of each layer in ``frozen`` (``ratio`` 1: the whole layer, the paper's presets)."""
+    units of each layer in ``frozen`` (``ratio`` 1: the whole layer, the paper's presets), after
+    a ``mode`` transfer (``paper`` or ``semantic``; ignored when ``transfer`` is False)."""
 
-    def __init__(self, name: str, transfer: bool, frozen: tuple[str, ...], ratio: float = 1.0):
-        self.name, self.transfer, self.frozen, self.ratio = name, transfer, frozen, ratio
+    def __init__(self, name: str, transfer: bool, frozen: tuple[str, ...], ratio: float = 1.0,
+                 mode: str = "paper"):
+        self.name, self.transfer, self.frozen, self.ratio, self.mode = name, transfer, frozen, ratio, mode
+
+    @property
+    def mode_index(self) -> int:
+        """0: no transfer (scratch), 1: paper, 2: semantic (the program's per-variant switch)."""
+        return 0 if not self.transfer else 1 + TRANSFER_MODES.index(self.mode)
 
     def __repr__(self) -> str:
         return (f"FreezePreset({self.name!r}, transfer={self.transfer}, frozen={self.frozen}, "
-                f"ratio={self.ratio})")
+                f"ratio={self.ratio}, mode={self.mode!r})")
 
 
 FREEZE_PRESETS: Mapping[str, FreezePreset] = {
@@ -76,8 +92,26 @@ def ratio_preset(rho: float) -> FreezePreset:
     return FreezePreset(ratio_name(rho), transfer=True, frozen=("L1", "L2"), ratio=rho)
 
 
+def with_mode(name: str, mode: str) -> str:
+    """The variant name of ``name`` transferred in ``mode``: ``('L2', 'semantic')`` ->
+    'L2@semantic'; paper-mode and non-transferring names stay bare."""
+    base = name.partition(MODE_SEPARATOR)[0]
+    if mode == "paper" or not variant(base).transfer:
+        return base
+    return f"{base}{MODE_SEPARATOR}{mode}"
+
+
 def variant(name: str) -> FreezePreset:
-    """The preset named ``name``: one of FREEZE_PRESETS, or ``rho<r>`` for a freeze ratio."""
+    """The preset named ``name``: one of FREEZE_PRESETS, or ``rho<r>`` for a freeze ratio,
+    optionally suffixed ``@semantic`` (or ``@paper``) for its transfer mode."""
+    base, sep, mode = name.partition(MODE_SEPARATOR)
+    if sep:
+        if mode not in TRANSFER_MODES:
+            raise ValueError(f"variant {name!r}: unknown transfer mode {mode!r}; choose from {list(TRANSFER_MODES)}")
+        v = variant(base)
+        if not v.transfer:
+            raise ValueError(f"variant {name!r}: {base!r} transfers nothing, so it takes no transfer mode")
+        return FreezePreset(name if mode != "paper" else base, v.transfer, v.frozen, v.ratio, mode)
     if name in FREEZE_PRESETS:
         return FREEZE_PRESETS[name]
     if name.startswith(RATIO_PREFIX):

@@ -204,6 +204,8 @@ def load_experiment(exp: str, overrides: Mapping[str, Any] | Iterable[str] = ())
 
 def build_config(flat: Mapping[str, Any]) -> ExperimentConfig:
     flat = dict(flat)
+    if "transfer" in flat:  # transfer=semantic is short for transfer.mode=semantic
+        flat["transfer.mode"] = flat.pop("transfer")
     base = ExperimentConfig()
     stages = {}
     for stage in ("source", "target"):

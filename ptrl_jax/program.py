@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 
 import envs
+from ptrl_jax import normalization, semantic
 from ptrl_jax.config import ExperimentConfig
 from ptrl_jax.freeze import empty_mask, preset_mask, transfer, variant
 from ptrl_jax.train import ProgressFn, Trainer, TrainState, make_train
@@ -47,6 +48,9 @@ class ProgramState(NamedTuple):
     """Whether the targets have been initialised from the trained source (transfer done)."""
     target_key: jax.Array
     """PRNG key of the target stage (initialisation and env streams)."""
+    init_target: Any = None
+    """``{"params", "normalizer"}`` of ``init_checkpoint`` (the start of every transferring
+    variant), or None."""
 
 
 class ProgramOutput(NamedTuple):
@@ -61,8 +65,9 @@ class ProgramOutput(NamedTuple):
 
 class Program(NamedTuple):
     init: Callable[..., ProgramState]
-    """``init(key, source_params=None)``: the initial state (jit it); ``source_params``, a
-    trained source's parameters, when the config starts from ``source_checkpoint``."""
+    """``init(key, source=None, init_target=None)``: the initial state (jit it). ``source``,
+    ``{"params", "normalizer"}`` of a trained source, when the config starts from
+    ``source_checkpoint``; ``init_target``, the same of the target, with ``init_checkpoint``."""
     advance: Callable[[ProgramState, jax.Array], ProgramState]
     """``advance(state, budget)``: run up to ``budget`` more iterations, source stage first,
     then (after the transfer) the target stage (jit it; ``budget`` is a traced int)."""
@@ -72,6 +77,9 @@ class Program(NamedTuple):
     target_trainers: dict[str, Trainer]
     source_env: Any
     target_envs: dict[str, Any]
+    transfer_maps: dict[str, Any]
+    """Per target robot: its ``semantic.TransferMap`` from the source (only when a variant
+    transfers semantically)."""
 
     @staticmethod
     def output(state: ProgramState) -> ProgramOutput:
@@ -111,31 +119,50 @@ def make_program(
     presets = cfg.variants
     n_seeds = cfg.seeds
     n_source, n_target = cfg.source_iterations, cfg.target.ppo.num_iterations
+    # Built before anything compiles: a joint map naming a joint that does not exist fails here.
+    transfer_maps = ({r: semantic.build_map(source_env, e, cfg.transfer.joint_map, cfg.transfer.unmapped_blocks)
+                      for r, e in target_envs.items()} if cfg.semantic else {})
+    modes = [variant(p).mode_index for p in presets]  # 0 scratch, 1 paper, 2 semantic
 
-    def init_robot_targets(target: Trainer, robot_index: int, source_params, target_key) -> TrainState:
+    def init_robot_targets(target: Trainer, robot: str, robot_index: int, source, target_key,
+                           init_target=None) -> TrainState:
         template = jax.eval_shape(target.init_params, target_key)
         zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), template)
         masks = jax.tree.map(lambda *m: jnp.stack(m), *[preset_mask(zeros, p) for p in presets])
-        transfer_flags = jnp.array([variant(p).transfer for p in presets])
+        mode_ids = jnp.array(modes, jnp.int32)
         run_ids = target_run_id(cfg, robot_index, jnp.arange(len(presets))[:, None], jnp.arange(n_seeds)[None, :])
         seed_keys = jax.random.split(target_key, n_seeds)
         hparams = cfg.target.ppo.hparams()
 
-        def one_target(seed_key, transfer_flag, mask, run_id):
+        def one_target(seed_key, mode, mask, run_id):
             init_k, train_k = jax.random.split(seed_key)
             fresh = target.init_params(init_k)
-            params = transfer(source_params, fresh, transfer_flag)
-            return target.init(train_k, hparams, mask, params, run_id)
+            if init_target is not None:  # init_checkpoint: every transferring variant starts from it
+                pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(mode > 0, x, y), a, b)  # noqa: E731
+                fresh_norm = {k: normalization.init(n) for k, n in target.observation_sizes.items()}
+                return target.init(train_k, hparams, mask, pick(init_target["params"], fresh), run_id,
+                                   pick(init_target["normalizer"], fresh_norm))
+            params = transfer(source["params"], fresh, mode == 1)
+            if 2 not in modes:  # static: programs without a semantic variant are unchanged
+                return target.init(train_k, hparams, mask, params, run_id)
+            fresh_norm = {k: normalization.init(n) for k, n in target.observation_sizes.items()}
+            sem_params, sem_norm = semantic.apply(transfer_maps[robot], source["params"], source["normalizer"],
+                                                  fresh, fresh_norm)
+            is_sem = mode == 2
+            params = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_params, params)
+            norm = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_norm, fresh_norm)
+            return target.init(train_k, hparams, mask, params, run_id, norm)
 
         over_seeds = jax.vmap(one_target, in_axes=(0, None, None, 0))
-        return jax.vmap(over_seeds, in_axes=(None, 0, 0, 0))(seed_keys, transfer_flags, masks, run_ids)
+        return jax.vmap(over_seeds, in_axes=(None, 0, 0, 0))(seed_keys, mode_ids, masks, run_ids)
 
     @jax.jit  # traced once: init's eval_shape and advance's transfer share the trace
-    def init_targets(source_params, target_key) -> dict[str, TrainState]:
+    def init_targets(source, target_key, init_target=None) -> dict[str, TrainState]:
         # The first target robot uses target_key itself (a single-target program is unchanged by
         # the multi-target generalisation); further robots fold in their index.
         keys = [target_key] + [jax.random.fold_in(target_key, i) for i in range(1, len(targets))]
-        return {r: init_robot_targets(t, i, source_params, keys[i]) for i, (r, t) in enumerate(targets.items())}
+        return {r: init_robot_targets(t, r, i, source, keys[i], init_target)
+                for i, (r, t) in enumerate(targets.items())}
 
     # Wrapped in jit so that tracing happens once: ``init`` asks for the metric shapes with
     # eval_shape, and ``advance`` then reuses the same traced jaxprs (jit's trace cache) instead
@@ -147,15 +174,19 @@ def make_program(
     def zeros_like_shapes(tree):
         return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), tree)
 
-    def init(key: jax.Array, source_params=None) -> ProgramState:
+    def init(key: jax.Array, source_ckpt=None, init_target=None) -> ProgramState:
         source_key, target_key = jax.random.split(key)
         init_key, train_key = jax.random.split(source_key)
-        if (source_params is None) != (not cfg.source_checkpoint):
-            raise ValueError("init: pass source_params exactly when the config has a source_checkpoint")
-        params = source.init_params(init_key) if source_params is None else source_params
-        src = source.init(train_key, cfg.source.ppo.hparams(), empty_mask(params), params)
+        if (source_ckpt is None) != (not cfg.source_checkpoint):
+            raise ValueError("init: pass source_ckpt exactly when the config has a source_checkpoint")
+        if (init_target is None) != (not cfg.init_checkpoint):
+            raise ValueError("init: pass init_target exactly when the config has an init_checkpoint")
+        params = source.init_params(init_key) if source_ckpt is None else source_ckpt["params"]
+        src = source.init(train_key, cfg.source.ppo.hparams(), empty_mask(params), params,
+                          normalizer=None if source_ckpt is None else source_ckpt["normalizer"])
         src_metrics = jax.eval_shape(source_iteration, src)[1]
-        tgts = jax.eval_shape(init_targets, params, target_key)
+        tgts = jax.eval_shape(init_targets, {"params": src.params, "normalizer": src.normalizer}, target_key,
+                              init_target)
         tgt_metrics = {r: jax.eval_shape(batched_target_iterations[r], tgts[r])[1] for r in targets}
         return ProgramState(
             source=src,
@@ -164,6 +195,7 @@ def make_program(
             target_metrics=jax.tree.map(lambda s: jnp.zeros((n_target, *s.shape), s.dtype), tgt_metrics),
             targets_started=jnp.array(False),
             target_key=target_key,
+            init_target=init_target,
         )
 
     def source_body(carry):
@@ -183,7 +215,8 @@ def make_program(
         return state._replace(targets=tgts, target_metrics=buffers), done + 1
 
     def start_targets(state: ProgramState) -> ProgramState:
-        return state._replace(targets=init_targets(state.source.params, state.target_key),
+        source_now = {"params": state.source.params, "normalizer": state.source.normalizer}
+        return state._replace(targets=init_targets(source_now, state.target_key, state.init_target),
                               targets_started=jnp.array(True))
 
     def advance(state: ProgramState, budget: jax.Array) -> ProgramState:
@@ -204,4 +237,4 @@ def make_program(
     def run(key: jax.Array) -> ProgramOutput:
         return Program.output(advance(init(key), jnp.int32(n_source + n_target)))
 
-    return Program(init, advance, run, source, targets, source_env, target_envs)
+    return Program(init, advance, run, source, targets, source_env, target_envs, transfer_maps)

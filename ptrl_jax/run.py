@@ -29,7 +29,7 @@ import jax
 import numpy as np
 import yaml
 
-from ptrl_jax import artifacts, summary
+from ptrl_jax import artifacts, normalization, summary
 from ptrl_jax.config import ExperimentConfig
 from ptrl_jax.artifacts import CheckpointError
 from ptrl_jax.overrides import ConfigError, build_config, flatten, load_experiment, parse_cli, to_dict
@@ -335,40 +335,67 @@ def save_resume_state(cfg: ExperimentConfig, run_dir: Path, state: Any, progress
 _PROGRAMS: dict[tuple, tuple] = {}
 
 
-def load_source_params(cfg: ExperimentConfig, program: Program) -> Any:
-    """The parameters of ``cfg.source_checkpoint``, checked against this experiment's source
-    robot and network; None when the config trains its own source."""
-    if not cfg.source_checkpoint:
-        return None
-    path = Path(cfg.source_checkpoint)
+def load_policy(path: Path, robot: str, trainer, what: str) -> dict[str, Any]:
+    """``{"params", "normalizer"}`` of a checkpoint, checked against ``robot`` and the network and
+    observation sizes of ``trainer``; each refusal names the file and the leaf. ``what`` names
+    the config key in messages."""
+    path = Path(path)
     ckpt = artifacts.load_checkpoint(path)
-    robot = ckpt["meta"].get("robot")
-    if robot != cfg.source.robot:
-        raise CheckpointError(f"source_checkpoint {path} is a {robot!r} policy; this experiment's "
-                              f"source.robot is {cfg.source.robot!r}")
-    template = jax.eval_shape(program.source_trainer.init_params, jax.random.PRNGKey(0))
+    found = ckpt["meta"].get("robot")
+    if found != robot:
+        raise CheckpointError(f"{what} {path} is a {found!r} policy; this experiment needs a {robot!r} one")
+    template = jax.eval_shape(trainer.init_params, jax.random.PRNGKey(0))
     flat = dict(jax.tree_util.tree_leaves_with_path(ckpt["params"]))
     want = dict(jax.tree_util.tree_leaves_with_path(template))
     for name in sorted(set(map(jax.tree_util.keystr, want)) ^ set(map(jax.tree_util.keystr, flat))):
-        raise CheckpointError(f"source_checkpoint {path}: parameter {name} is in only one of the "
+        raise CheckpointError(f"{what} {path}: parameter {name} is in only one of the "
                               f"checkpoint and this experiment's network")
     for k, like in want.items():
         if flat[k].shape != like.shape:
-            raise CheckpointError(f"source_checkpoint {path}: {jax.tree_util.keystr(k)} is "
+            raise CheckpointError(f"{what} {path}: {jax.tree_util.keystr(k)} is "
                                   f"{list(flat[k].shape)}, this network needs {list(like.shape)}")
-    return jax.tree.map(lambda x, like: np.asarray(x, like.dtype), ckpt["params"], template)
+    params = jax.tree.map(lambda x, like: np.asarray(x, like.dtype), ckpt["params"], template)
+    normalizer = {}
+    for key, size in trainer.observation_sizes.items():
+        stats = ckpt["normalizer"].get(key)
+        if not isinstance(stats, dict) or set(stats) != {"mean", "m2", "count"}:
+            raise CheckpointError(f"{what} {path}: no normaliser statistics for {key!r} "
+                                  f"(normalizer/{key}/mean, m2, count)")
+        if stats["mean"].shape != (size,):
+            raise CheckpointError(f"{what} {path}: normalizer/{key} has {stats['mean'].shape[0]} entries, "
+                                  f"this robot's {key} has {size}")
+        normalizer[key] = normalization.RunningStats(
+            np.asarray(stats["mean"], np.float32), np.asarray(stats["m2"], np.float32),
+            np.asarray(stats["count"], np.float32))
+    return {"params": params, "normalizer": normalizer}
+
+
+def load_source_params(cfg: ExperimentConfig, program: Program) -> Any:
+    """``{"params", "normalizer"}`` of ``cfg.source_checkpoint``, checked against this
+    experiment's source robot and network; None when the config trains its own source."""
+    if not cfg.source_checkpoint:
+        return None
+    return load_policy(Path(cfg.source_checkpoint), cfg.source.robot, program.source_trainer, "source_checkpoint")
+
+
+def load_init_target(cfg: ExperimentConfig, program: Program) -> Any:
+    """``{"params", "normalizer"}`` of ``cfg.init_checkpoint`` (a target checkpoint), or None."""
+    if not cfg.init_checkpoint:
+        return None
+    return load_policy(Path(cfg.init_checkpoint), cfg.target.robot, program.target_trainers[cfg.target.robot],
+                       "init_checkpoint")
 
 
 def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array, budget: np.int32):
     """(program, jitted init, compiled advance) for ``cfg``."""
     cache_key = (cfg.source, cfg.target, cfg.extra_targets, cfg.network, cfg.variants, cfg.seeds,
-                 bool(cfg.source_checkpoint), cfg.trains_source)
+                 bool(cfg.source_checkpoint), bool(cfg.init_checkpoint), cfg.trains_source, cfg.transfer)
     if not progress.show and cache_key in _PROGRAMS:
         return _PROGRAMS[cache_key]
     program = make_program(cfg, progress.hook)
     init = jax.jit(program.init)
-    source_params = load_source_params(cfg, program)
-    advance = jax.jit(program.advance).lower(jax.eval_shape(init, key, source_params), budget).compile()
+    inputs = load_source_params(cfg, program), load_init_target(cfg, program)
+    advance = jax.jit(program.advance).lower(jax.eval_shape(init, key, *inputs), budget).compile()
     if not progress.show:
         _PROGRAMS[cache_key] = (program, init, advance)
     return program, init, advance
@@ -390,12 +417,12 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     t = time.monotonic()
     program, init, advance = _compiled_program(cfg, progress, key, budget)
     run_dir = resume_from or run_dir or new_run_dir(cfg)  # after compiling: a refused run writes nothing
-    source_params = load_source_params(cfg, program)
+    inputs = load_source_params(cfg, program), load_init_target(cfg, program)
     if resume_from is not None:
-        state, meta = artifacts.load_state(run_dir / RESUME_STATE, jax.eval_shape(init, key, source_params))
+        state, meta = artifacts.load_state(run_dir / RESUME_STATE, jax.eval_shape(init, key, *inputs))
         progress.restore(meta)
     else:
-        state = init(key, source_params)
+        state = init(key, *inputs)
     compile_s = time.monotonic() - t
     if resume_from is None:
         artifacts.write_config(run_dir / "config.yaml", to_dict(cfg))

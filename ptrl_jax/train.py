@@ -106,7 +106,9 @@ def make_train(
     def init_params(key: PRNGKey) -> Params:
         return init_actor_critic(key, network, obs_sizes["state"], obs_sizes["privileged_state"], action_size)
 
-    def init(key: PRNGKey, hparams: PPOHparams, frozen: Mask, params: Params, run_id=0) -> TrainState:
+    def init(key: PRNGKey, hparams: PPOHparams, frozen: Mask, params: Params, run_id=0,
+             normalizer: dict | None = None) -> TrainState:
+        """``normalizer``: starting statistics (a transfer's); fresh when None."""
         key, env_key = jax.random.split(key)
         env_state = reset_fn(jax.random.split(env_key, ppo.num_envs))
         n = ppo.num_envs
@@ -116,7 +118,7 @@ def make_train(
             params=params,
             opt_state=make_optimizer(frozen, hparams.max_grad_norm).init(params),
             learning_rate=jnp.asarray(hparams.learning_rate, jnp.float32),
-            normalizer={k: normalization.init(s) for k, s in obs_sizes.items()},
+            normalizer=normalizer if normalizer is not None else {k: normalization.init(s) for k, s in obs_sizes.items()},
             env_state=env_state,
             episodes=EpisodeStats(zeros, zeros, terms, zeros, zeros, terms, zeros),
             key=key,

@@ -19,8 +19,11 @@ def go2_program():
     return cfg, make_program(cfg)
 
 
-def write_source(path, params, robot="go2"):
-    artifacts.save_checkpoint(path, params, {}, jax.tree.map(lambda p: np.zeros(p.shape, bool), params),
+def write_source(path, params, robot="go2", normalizer=None):
+    if normalizer is None:
+        normalizer = {k: {"mean": np.zeros(n, np.float32), "m2": np.ones(n, np.float32), "count": np.float32(1)}
+                      for k, n in (("state", 45), ("privileged_state", 53))}
+    artifacts.save_checkpoint(path, params, normalizer, jax.tree.map(lambda p: np.zeros(p.shape, bool), params),
                               {"robot": robot, "stage": "source"})
 
 
@@ -31,7 +34,8 @@ class TestLoadSourceParams:
         write_source(tmp_path / "source.npz", params)
         cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={tmp_path / 'source.npz'}"])
         loaded = load_source_params(cfg, program)
-        assert jax.tree.all(jax.tree.map(np.array_equal, loaded, params))
+        assert jax.tree.all(jax.tree.map(np.array_equal, loaded["params"], params))
+        assert loaded["normalizer"]["state"].m2.shape == (45,) and float(loaded["normalizer"]["state"].count) == 1.0
         assert cfg.source_iterations == 0 and cfg.source.ppo.num_iterations == 2
 
     def test_another_robot_is_refused(self, go2_program, tmp_path):
@@ -39,7 +43,7 @@ class TestLoadSourceParams:
         params = jax.tree.map(np.asarray, program.source_trainer.init_params(jax.random.PRNGKey(0)))
         write_source(tmp_path / "a1.npz", params, robot="a1")
         cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={tmp_path / 'a1.npz'}"])
-        with pytest.raises(CheckpointError, match="'a1' policy; this experiment's source.robot is 'go2'"):
+        with pytest.raises(CheckpointError, match="'a1' policy; this experiment needs a 'go2' one"):
             load_source_params(cfg, program)
 
     def test_another_network_is_refused_naming_the_leaf(self, go2_program, tmp_path):
@@ -49,6 +53,14 @@ class TestLoadSourceParams:
         write_source(tmp_path / "small.npz", params)
         cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={tmp_path / 'small.npz'}"])
         with pytest.raises(CheckpointError, match=r"\['actor'\]\['layer_1'\]\['w'\] is \[512, 64\]"):
+            load_source_params(cfg, program)
+
+    def test_a_checkpoint_without_normaliser_statistics_is_refused(self, go2_program, tmp_path):
+        _, program = go2_program
+        params = jax.tree.map(np.asarray, program.source_trainer.init_params(jax.random.PRNGKey(0)))
+        write_source(tmp_path / "nonorm.npz", params, normalizer={})
+        cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={tmp_path / 'nonorm.npz'}"])
+        with pytest.raises(CheckpointError, match="no normaliser statistics for '(state|privileged_state)'"):
             load_source_params(cfg, program)
 
     def test_a_missing_file_is_refused(self, go2_program, tmp_path):

@@ -1,0 +1,220 @@
+"""The semantic transfer: declarations, the correspondence they imply, and the parameter surgery.
+
+Hand-computed indices below follow the layouts in envs/quadruped.py (45-entry state: angular
+velocity 0-2, projected gravity 3-5, joint positions 6-17, velocities 18-29, command 30-32, last
+action 33-44; privileged adds linear velocity 45-47, height 48, contacts FL FR RL RR 49-52) and
+envs/biped.py (47-entry frame: clock 0-1, command 2-4, joint positions 5-16, velocities 17-28,
+last action 29-40, angular velocity 41-43, roll pitch yaw 44-46; the actor stacks 15 frames,
+newest last; privileged: frame, linear velocity 47-49, height 50, stance 51-52, contacts 53-54,
+joint error 55-66).
+"""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+from envs import semantics
+from ptrl_jax import normalization, semantic
+from ptrl_jax.config import NetworkConfig
+from ptrl_jax.networks import init_actor_critic, policy_apply, value_apply
+from ptrl_jax.train import normalize_obs
+
+XBOT_NEWEST = 14 * 47  # first entry of the newest of XBot-L's 15 stacked frames
+
+
+@pytest.fixture(scope="module")
+def robots():
+    return {r: envs.make(r) for r in ("go2", "a1", "xbot_l", "tron1", "cassie")}
+
+
+def random_agent(key, env, network=NetworkConfig(actor_hidden=(16, 8, 4), critic_hidden=(16, 8, 4))):
+    obs = jax.eval_shape(env.reset, jax.random.PRNGKey(0)).obs
+    sizes = {k: int(v.shape[-1]) for k, v in obs.items()}
+    k1, k2, k3 = jax.random.split(key, 3)
+    params = init_actor_critic(k1, network, sizes["state"], sizes["privileged_state"], env.action_size)
+    params["log_std"] = jax.random.normal(k3, params["log_std"].shape) * 0.3
+    norm = {}
+    for i, (k, n) in enumerate(sizes.items()):
+        ka, kb = jax.random.split(jax.random.fold_in(k2, i))
+        norm[k] = normalization.RunningStats(jax.random.normal(ka, (n,)), jnp.exp(jax.random.normal(kb, (n,))) * 100.0,
+                                             jnp.float32(100.0))
+    fresh_norm = {k: normalization.init(n) for k, n in sizes.items()}
+    return params, norm, fresh_norm, network
+
+
+class TestDeclarations:
+    @pytest.mark.parametrize("robot", envs.robot_names())
+    def test_blocks_cover_every_observation_entry(self, robot):
+        env = envs.make(robot)
+        obs = jax.eval_shape(env.reset, jax.random.PRNGKey(0)).obs
+        blocks = env.observation_blocks()
+        assert set(blocks) == set(obs)
+        for key, b in blocks.items():
+            assert len(semantics.flatten(b)) == obs[key].shape[-1], (robot, key)
+        assert len(env.joint_roles) == env.num_joints and env.joint_signs.shape == (env.num_joints,)
+
+    def test_axis_signs_follow_the_model(self, robots):
+        # XBot-L's left knee turns about -y, its left hip pitch about +y; Go2's are all +y.
+        x = robots["xbot_l"]
+        assert x.joint_signs[x.joint_names.index("left_knee_joint")] == -1.0
+        assert x.joint_signs[x.joint_names.index("left_leg_pitch_joint")] == 1.0
+        assert x.joint_signs[x.joint_names.index("right_leg_pitch_joint")] == -1.0
+        assert (robots["go2"].joint_signs == 1.0).all()
+
+    def test_a_bad_role_names_the_joint_and_the_nearest_kind(self):
+        cfg = dataclasses.replace(envs.default_config("go2"),
+                                  joint_roles=("FL:hip_rol",) + envs.default_config("go2").joint_roles[1:])
+        with pytest.raises(ValueError, match="'FL_hip_joint' has role 'FL:hip_rol'.*did you mean 'hip_roll'"):
+            envs.make("go2", cfg)
+
+    def test_a_role_against_the_axis_is_refused(self):
+        roles = list(envs.default_config("go2").joint_roles)
+        roles[0] = "FL:hip_pitch"  # the abduction joint turns about x
+        with pytest.raises(ValueError, match="'FL_hip_joint' is declared FL:hip_pitch"):
+            envs.make("go2", dataclasses.replace(envs.default_config("go2"), joint_roles=tuple(roles)))
+
+
+class TestGo2ToA1IsTheIdentity:
+    def test_the_map(self, robots):
+        m = semantic.build_map(robots["go2"], robots["a1"])
+        assert np.array_equal(m.joint_source, np.arange(12)) and (m.joint_factor == 1.0).all()
+        for key, e in m.obs.items():
+            assert np.array_equal(e.source_index, np.arange(e.source_index.size)), key
+            assert (e.factor == 1.0).all() and (e.weight == 1.0).all(), key
+
+    def test_actor_and_critic_outputs_are_bitwise_the_sources(self, robots):
+        src, src_norm, fresh_norm, net = random_agent(jax.random.PRNGKey(0), robots["go2"])
+        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
+        m = semantic.build_map(robots["go2"], robots["a1"])
+        params, norm = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+        obs = {"state": jax.random.normal(jax.random.PRNGKey(2), (5, 45)),
+               "privileged_state": jax.random.normal(jax.random.PRNGKey(3), (5, 53))}
+        a = policy_apply(src, normalize_obs(src_norm, obs, True), net)
+        b = policy_apply(params, normalize_obs(norm, obs, True), net)
+        assert np.array_equal(a.mean, b.mean) and np.array_equal(a.std, b.std)
+        assert np.array_equal(value_apply(src, normalize_obs(src_norm, obs, True), net),
+                              value_apply(params, normalize_obs(norm, obs, True), net))
+
+
+class TestGo2ToXBotL:
+    @pytest.fixture(scope="class")
+    def transferred(self, robots):
+        src, src_norm, _, net = random_agent(jax.random.PRNGKey(0), robots["go2"])
+        fresh, _, fresh_norm, _ = random_agent(jax.random.PRNGKey(1), robots["xbot_l"])
+        m = semantic.build_map(robots["go2"], robots["xbot_l"])
+        params, norm = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+        return src, src_norm, fresh, params, norm
+
+    def test_input_rows_land_in_the_right_columns(self, transferred):
+        src, _, _, params, _ = transferred
+        w_s, w_t = np.asarray(src["actor"]["layer_0"]["w"]), np.asarray(params["actor"]["layer_0"]["w"])
+        hand = {  # XBot-L newest-frame entry -> (Go2 entry, sign)
+            2: (30, 1), 3: (31, 1), 4: (32, 1),       # command vx, vy, yaw (scales absorbed by the stats)
+            5 + 0: (6 + 6, 1),                        # left hip roll <- RL hip abduction
+            5 + 2: (6 + 7, 1),                        # left hip pitch <- RL thigh
+            5 + 3: (6 + 8, -1),                       # left knee (axis -y) <- RL calf (axis +y)
+            5 + 8: (6 + 10, -1),                      # right hip pitch (axis -y) <- RR thigh
+            17 + 3: (18 + 8, -1),                     # left knee velocity
+            29 + 9: (33 + 11, 1),                     # right knee last action (right knee axis +y)
+            41: (0, 1), 42: (1, 1), 43: (2, 1),       # angular velocity
+            44: (4, -1), 45: (3, 1),                  # roll <- -gravity y, pitch <- gravity x
+        }
+        for t, (s, sign) in hand.items():
+            assert np.array_equal(w_t[XBOT_NEWEST + t], sign * w_s[s]), t
+        unmatched = [0, 1, 5 + 1, 5 + 4, 5 + 5, 46]  # clock, hip yaw, ankles, heading
+        assert not w_t[[XBOT_NEWEST + u for u in unmatched]].any()
+        assert not w_t[:XBOT_NEWEST].any()  # older frames start at zero
+        assert np.array_equal(params["actor"]["layer_0"]["b"], src["actor"]["layer_0"]["b"])
+        assert np.array_equal(params["actor"]["layer_1"]["w"], src["actor"]["layer_1"]["w"])
+
+    def test_normaliser_statistics_are_converted(self, transferred):
+        _, src_norm, _, _, norm = transferred
+        s, t = src_norm["state"], norm["state"]
+        # command yaw: Go2 observes 0.25 x rate, XBot-L 1 x rate
+        assert np.isclose(t.mean[XBOT_NEWEST + 4], 4.0 * s.mean[32]) and np.isclose(t.m2[XBOT_NEWEST + 4], 16.0 * s.m2[32])
+        assert np.isclose(t.mean[XBOT_NEWEST + 5 + 3], -s.mean[14])  # knee sign
+        assert float(t.mean[0]) == 0.0 and float(t.m2[0]) == float(s.count)  # unmatched: mean 0, variance 1
+        assert float(t.count) == float(s.count)
+
+    def test_output_columns_and_log_std(self, transferred):
+        src, _, fresh, params, _ = transferred
+        w_s, w_t = np.asarray(src["actor"]["layer_3"]["w"]), np.asarray(params["actor"]["layer_3"]["w"])
+        assert np.array_equal(w_t[:, 3], -w_s[:, 8])  # left knee <- -RL calf
+        assert np.array_equal(w_t[:, 2], w_s[:, 7])
+        assert np.allclose(w_t[:, 1], semantic.UNMAPPED_OUTPUT_SCALE * np.asarray(fresh["actor"]["layer_3"]["w"][:, 1]))
+        assert params["actor"]["layer_3"]["b"][1] == 0.0
+        ls = np.asarray(params["log_std"])
+        assert ls[3] == src["log_std"][8]
+        mapped = [0, 2, 3, 6, 8, 9]
+        assert np.isclose(ls[1], ls[mapped].mean())
+
+    def test_critic_contacts_come_from_the_hind_feet(self, transferred):
+        src, _, _, params, _ = transferred
+        w_s, w_t = np.asarray(src["critic"]["layer_0"]["w"]), np.asarray(params["critic"]["layer_0"]["w"])
+        assert np.array_equal(w_t[53], w_s[51]) and np.array_equal(w_t[54], w_s[52])
+        assert np.array_equal(w_t[47], w_s[45])  # linear velocity x
+        assert not w_t[50].any()  # base height compares within a family only
+        assert not w_t[[51, 52]].any() and not w_t[55:].any()  # stance and gait error: biped only
+        assert np.array_equal(params["critic"]["layer_3"]["w"], src["critic"]["layer_3"]["w"])
+
+
+class TestSharedInputsAreSplit:
+    def test_two_quadruped_legs_share_one_biped_leg(self, robots):
+        m = semantic.build_map(robots["xbot_l"], robots["go2"])
+        e = m.obs["state"]
+        fl_thigh, rl_thigh = 6 + 1, 6 + 7
+        assert e.source_index[fl_thigh] == e.source_index[rl_thigh] == XBOT_NEWEST + 5 + 2
+        assert e.weight[fl_thigh] == e.weight[rl_thigh] == 0.5
+        assert m.joint_source[1] == m.joint_source[7] == 2
+
+
+class TestOverridesAndRefusals:
+    def test_a_joint_map_overrides_a_pair_and_flips_a_sign(self, robots):
+        m = semantic.build_map(robots["go2"], robots["xbot_l"],
+                               joint_map=("left_knee_joint:-FL_calf_joint", "left_leg_roll_joint:none"))
+        assert m.joint_source[3] == 2 and m.joint_factor[3] == 1.0  # -1 (axes) x -1 (flip)
+        assert m.joint_source[0] == -1
+
+    def test_unknown_joints_and_blocks_are_named(self, robots):
+        with pytest.raises(ValueError, match="target joint 'left_kne_joint' does not exist; did you mean 'left_knee_joint'"):
+            semantic.build_map(robots["go2"], robots["xbot_l"], joint_map=("left_kne_joint:RL_calf_joint",))
+        with pytest.raises(ValueError, match="source joint 'RL_calve_joint' does not exist; did you mean 'RL_calf_joint'"):
+            semantic.build_map(robots["go2"], robots["xbot_l"], joint_map=("left_knee_joint:RL_calve_joint",))
+        with pytest.raises(ValueError, match="'foot_contacts' is not a block.*did you mean 'foot_contact'"):
+            semantic.build_map(robots["go2"], robots["xbot_l"], unmapped_blocks=("foot_contacts",))
+
+    def test_unmapped_blocks_start_at_zero(self, robots):
+        m = semantic.build_map(robots["go2"], robots["a1"], unmapped_blocks=("foot_contact",))
+        assert (m.obs["privileged_state"].source_index[49:53] == -1).all()
+        assert (m.obs["state"].source_index >= 0).all()
+
+    def test_a_robot_without_roles_is_refused(self, robots):
+        bare = envs.make("a1", dataclasses.replace(envs.default_config("a1"), joint_roles=()))
+        with pytest.raises(ValueError, match="declares no joint_roles"):
+            semantic.build_map(robots["go2"], bare)
+
+
+class TestVariantNames:
+    def test_mode_suffixes(self):
+        from ptrl_jax.freeze import variant, with_mode
+
+        assert variant("L2@semantic").mode_index == 2 and variant("L2").mode_index == 1
+        assert variant("scratch").mode_index == 0
+        assert with_mode("rho0.5", "semantic") == "rho0.5@semantic" and with_mode("scratch", "semantic") == "scratch"
+        assert variant("L2@paper").name == "L2"
+        with pytest.raises(ValueError, match="unknown transfer mode 'semantc'"):
+            variant("L2@semantc")
+        with pytest.raises(ValueError, match="'scratch' transfers nothing"):
+            variant("scratch@semantic")
+
+    def test_transfer_semantic_names_the_variants(self):
+        from ptrl_jax.overrides import load_experiment
+
+        cfg = load_experiment("go2_to_xbot", ["scale=smoke", "transfer=semantic", "freeze_presets=[L2,none@paper,scratch]",
+                                              "freeze_ratio=[0.5]"])
+        assert cfg.variants == ("L2@semantic", "none", "scratch", "rho0.5@semantic")
+        assert cfg.semantic and cfg.transfer.mode == "semantic"
