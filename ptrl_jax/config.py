@@ -7,6 +7,7 @@ Validation happens in ``__post_init__``, so an impossible config fails before an
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -27,6 +28,9 @@ class NetworkConfig:
     """Hidden activation: elu, tanh or relu."""
     init_noise_std: float = 1.0
     """Initial policy standard deviation (rsl_rl: 1.0)."""
+    source_init_noise_std: float = 0.0
+    """The source stage's initial policy std; 0: ``init_noise_std``. Lets a target robot explore
+    with its own recipe's std (A1: 1.0) while the source trains with its own (Go2: 0.5)."""
 
     def __post_init__(self):
         if len(self.actor_hidden) != 3:
@@ -40,6 +44,15 @@ class NetworkConfig:
             raise ValueError(f"network.activation must be elu, tanh or relu, got {self.activation!r}")
         if self.init_noise_std <= 0:
             raise ValueError(f"network.init_noise_std must be > 0, got {self.init_noise_std}")
+        if self.source_init_noise_std < 0:
+            raise ValueError(f"network.source_init_noise_std must be >= 0 (0: init_noise_std), got {self.source_init_noise_std}")
+
+    @property
+    def source(self) -> "NetworkConfig":
+        """The network of the source stage (its own initial std)."""
+        if not self.source_init_noise_std:
+            return self
+        return dataclasses.replace(self, init_noise_std=self.source_init_noise_std, source_init_noise_std=0.0)
 
 
 class PPOHparams(NamedTuple):
@@ -176,12 +189,20 @@ class ReportConfig:
     """Time-to-threshold uses this fraction of the scratch baseline's final reward."""
     final_window: int = 10
     """'Final reward' is the mean over this many last iterations."""
+    zero_shot_check: bool = True
+    """Run the robot family's walking check on each transferred initialisation (and scratch's)
+    before any fine-tuning, seed 0, in MuJoCo C (a few seconds per check), for report.md's
+    zero-shot table. The first rollout's reward is reported either way."""
+    zero_shot_seconds: float = 20.0
+    """Length of each zero-shot check rollout, s (the walking check's own 20 s by default)."""
 
     def __post_init__(self):
         if not 0.0 < self.threshold_fraction <= 1.5:
             raise ValueError(f"report.threshold_fraction must be in (0, 1.5], got {self.threshold_fraction}")
         if self.final_window < 1:
             raise ValueError("report.final_window must be >= 1")
+        if self.zero_shot_seconds <= 0:
+            raise ValueError(f"report.zero_shot_seconds must be > 0, got {self.zero_shot_seconds}")
 
 
 @dataclass(frozen=True)

@@ -83,11 +83,15 @@ def check_verdict(check: WalkingCheck, result: Mapping[str, Any]) -> dict[str, A
                                                                      "forward_speed_error")}}
 
 
-def run_walking_check(policy: Mapping[str, Any], seed: int = 0, sim: str = "mjx") -> list[dict[str, Any]]:
+def run_walking_check(policy: Mapping[str, Any], seed: int = 0, sim: str = "mjx",
+                      seconds: float | None = None) -> list[dict[str, Any]]:
     """Every check of the policy's robot family, each a deterministic rollout (mean action, no
-    initial noise, no randomization); one verdict per check."""
+    initial noise, no randomization); one verdict per check. ``seconds`` shortens the rollouts
+    (the checks' own 20 s otherwise)."""
     verdicts = []
     for check in walking_checks(policy["robot"]):
+        if seconds is not None:
+            check = dataclasses.replace(check, seconds=float(seconds))
         result = evaluate_policy(robot=policy["robot"], env_cfg=policy["env"], params=policy["params"],
                                  normalizer=policy["normalizer"], network=policy["network"], command=check.command,
                                  seconds=check.seconds, seed=seed, sim=sim,

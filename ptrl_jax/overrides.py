@@ -168,18 +168,22 @@ def _deep_merge(base: dict, over: dict) -> dict:
 
 
 def read_preset(exp: str, _seen: tuple[Path, ...] = ()) -> dict:
-    """A preset file as a nested dict, with ``extends: <other preset>`` resolved (the file's own
-    keys win, nested sections such as ``scales`` merge key by key)."""
+    """A preset file as a nested dict, with ``extends: <other preset>`` (or a list of them,
+    merged in order) resolved: the file's own keys win, nested sections such as ``scales`` merge
+    key by key."""
     path = preset_path(exp).resolve()
     if path in _seen:
         chain = " -> ".join(p.stem for p in (*_seen, path))
         raise ConfigError(f"experiment presets extend each other in a cycle: {chain}")
     with open(path) as f:
         preset = yaml.safe_load(f) or {}
-    parent = preset.pop("extends", None)
-    if parent is None:
+    parents = preset.pop("extends", None)
+    if parents is None:
         return preset
-    return _deep_merge(read_preset(str(parent), (*_seen, path)), preset)
+    base: dict = {}
+    for parent in parents if isinstance(parents, list) else [parents]:
+        base = _deep_merge(base, read_preset(str(parent), (*_seen, path)))
+    return _deep_merge(base, preset)
 
 
 def load_experiment(exp: str, overrides: Mapping[str, Any] | Iterable[str] = ()) -> ExperimentConfig:

@@ -77,6 +77,10 @@ class Program(NamedTuple):
     target_trainers: dict[str, Trainer]
     source_env: Any
     target_envs: dict[str, Any]
+    initial_targets: Callable[[ProgramState], dict[str, TrainState]]
+    """``initial_targets(state)``: the target states as the transfer left them, before any
+    fine-tuning (recomputed from the state's source, key and init checkpoint; for zero-shot
+    evaluations)."""
     transfer_maps: dict[str, Any]
     """Per target robot: its ``semantic.TransferMap`` from the source (only when a variant
     transfers semantically)."""
@@ -112,7 +116,7 @@ def make_program(
     """``progress(stage_name)`` returns that stage's progress hook (or None)."""
     hook = progress or (lambda stage: None)
     source_env = envs.make(cfg.source.robot, cfg.source.env)
-    source = make_train(source_env, cfg.source.ppo, cfg.network, hook("source"))
+    source = make_train(source_env, cfg.source.ppo, cfg.network.source, hook("source"))
     stages = cfg.targets
     target_envs = {r: envs.make(r, st.env) for r, st in stages.items()}
     targets = {r: make_train(target_envs[r], st.ppo, cfg.network, hook("target")) for r, st in stages.items()}
@@ -237,4 +241,8 @@ def make_program(
     def run(key: jax.Array) -> ProgramOutput:
         return Program.output(advance(init(key), jnp.int32(n_source + n_target)))
 
-    return Program(init, advance, run, source, targets, source_env, target_envs, transfer_maps)
+    def initial_targets(state: ProgramState) -> dict[str, TrainState]:
+        source_now = {"params": state.source.params, "normalizer": state.source.normalizer}
+        return init_targets(source_now, state.target_key, state.init_target)
+
+    return Program(init, advance, run, source, targets, source_env, target_envs, initial_targets, transfer_maps)

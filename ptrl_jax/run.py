@@ -31,6 +31,7 @@ import yaml
 
 from ptrl_jax import artifacts, normalization, summary
 from ptrl_jax.config import ExperimentConfig
+from ptrl_jax.freeze import TRANSFER_MODES, variant
 from ptrl_jax.artifacts import CheckpointError
 from ptrl_jax.overrides import ConfigError, build_config, flatten, load_experiment, parse_cli, to_dict
 from ptrl_jax.program import Program, ProgramOutput, make_program, target_run_id
@@ -223,8 +224,11 @@ def save_checkpoints(cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput) -
 
 
 def save_outputs(
-    cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput, times: dict, extra_notes=(), stage_start=None
+    cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput, times: dict, extra_notes=(), stage_start=None,
+    initial: dict | None = None,
 ) -> dict:
+    """Every file of the run folder. ``initial``: ``Program.initial_targets`` of the final state,
+    for the zero-shot walking checks (none without it)."""
     rows = metric_rows(cfg, out, times, stage_start)
     multi = len(cfg.targets) > 1  # several target robots: file names carry the robot
     artifacts.write_metrics_csv(run_dir / "metrics.csv", rows)
@@ -232,7 +236,9 @@ def save_outputs(
         save_checkpoints(cfg, run_dir, out)
     source_curve = [(r["env_steps"], r["episode_reward"]) for r in rows if r["stage"] == "source"]
     transfers = cfg.trains_source or bool(cfg.source_checkpoint)
-    if cfg.source_checkpoint:
+    if cfg.init_checkpoint:
+        source_note = f"Transferring variants start from {cfg.init_checkpoint} (init_checkpoint)"
+    elif cfg.source_checkpoint:
         source_note = f"Source {cfg.source.robot}: loaded from {cfg.source_checkpoint} (not trained in this run)"
     elif not transfers:
         source_note = "No source: every variant trains from scratch (no transfer), so none was trained"
@@ -262,18 +268,73 @@ def save_outputs(
             notes.append(f"All {len(cfg.targets)} target robots ran in the same program, one iteration "
                          f"each per step of the target loop; wall times are shared")
         text = summary.format_report(title, table, threshold, common[:1] + notes + common[1:])
-        ratio_rows = summary.ratio_table(table)
-        if ratio_rows:
-            png = f"freeze_ratio_{robot}.png" if multi else "freeze_ratio.png"
-            scratch = next((r for r in table if r["preset"] == "scratch"), None)
-            summary.plot_freeze_ratio(run_dir / png, ratio_rows, scratch, title)
-            text += "\n" + summary.format_ratio_table(ratio_rows, png)
+        for mode in TRANSFER_MODES:
+            ratio_rows = summary.ratio_table(table, mode)
+            if ratio_rows:
+                stem = "freeze_ratio" + ("" if mode == "paper" else f"_{mode}")
+                png = f"{stem}_{robot}.png" if multi else f"{stem}.png"
+                scratch = next((r for r in table if r["preset"] == "scratch"), None)
+                summary.plot_freeze_ratio(run_dir / png, ratio_rows, scratch, f"{title}, {mode} transfer")
+                text += "\n" + summary.format_ratio_table(ratio_rows, png, mode)
+        if transfers or cfg.init_checkpoint:
+            zero = zero_shot_rows(cfg, robot, rows, None if initial is None else initial[robot])
+            text += "\n" + format_zero_shot(zero, cfg.report.zero_shot_seconds)
         sections.append(text)
         tables[robot] = (table, threshold)
     artifacts.atomic_write_text(run_dir / "report.md", "\n".join(sections))
     table, threshold = tables[cfg.target.robot]
     return {"rows": rows, "summary": table, "threshold": threshold,
             "summaries": {robot: t for robot, (t, _) in tables.items()}}
+
+
+def zero_shot_rows(cfg: ExperimentConfig, robot: str, rows, initial: Any, checker=None) -> list[dict[str, Any]]:
+    """Per distinct initialisation of ``robot``'s targets (scratch, paper, semantic, init
+    checkpoint: the first variant of each): the first rollout's mean reward per env step over
+    seeds (the policy before any update acted in it, with its exploration noise), and with
+    ``initial`` (``Program.initial_targets``' states of the robot) the family's walking check
+    of seed 0's deterministic policy. ``checker(policy) -> verdicts`` replaces the MuJoCo C
+    check (tests)."""
+    from ptrl_jax import evaluate
+
+    checker = checker or (lambda policy: evaluate.run_walking_check(
+        policy, sim="mujoco", seconds=cfg.report.zero_shot_seconds))
+    kinds = {}
+    for p, name in enumerate(cfg.variants):
+        kinds.setdefault(variant(name).mode_index, (p, name))
+    out = []
+    for mode, (p, name) in sorted(kinds.items()):
+        first = [r["step_reward"] for r in rows if r["stage"] == "target" and r["robot"] == robot
+                 and r["preset"] == name and r["iteration"] == 1]
+        row = {"variant": name, "initialisation": ("checkpoint" if cfg.init_checkpoint and mode else
+                                                    ("scratch", "paper", "semantic")[mode]),
+               "first_reward_mean": float(np.mean(first)), "first_reward_std": float(np.std(first)),
+               "checks": None}
+        if initial is not None:
+            pick = lambda x: np.asarray(x[p, 0])  # noqa: E731
+            stage = cfg.targets[robot]
+            policy = {"robot": robot, "env": stage.env, "network": cfg.network,
+                      "params": jax.tree.map(pick, initial.params),
+                      "normalizer": jax.tree.map(pick, initial.normalizer),
+                      "normalize_observations": stage.ppo.normalize_observations}
+            row["checks"] = checker(policy)
+        out.append(row)
+    return out
+
+
+def format_zero_shot(rows: list[dict[str, Any]], seconds: float = 20.0) -> str:
+    lines = ["## Zero-shot: the initialisations before any fine-tuning", "",
+             "First rollout: mean reward per env step over seeds, sampled actions (the first iteration's "
+             "rollout, before its update). Check: the family's walking check of seed 0's mean action "
+             f"(MuJoCo C, {seconds:g} s per command; `python -m ptrl_jax.evaluate ckpt=... check=true`).", "",
+             "| initialisation (variant) | first rollout, reward per step | walking check (survived, forward speed) |",
+             "|---|---|---|"]
+    for r in rows:
+        checks = "not run (report.zero_shot_check=false)" if r["checks"] is None else "; ".join(
+            f"{v['check']} vx {v['command'][0]:g}: {v['time_survived_s']:.1f} s, {v['mean_velocity'][0]:.2f} m/s, "
+            f"{'pass' if v['passed'] else 'fail'}" for v in r["checks"])
+        lines.append(f"| {r['initialisation']} ({r['variant']}) | {r['first_reward_mean']:.4f} ± "
+                     f"{r['first_reward_std']:.4f} | {checks} |")
+    return "\n".join(lines) + "\n"
 
 
 def new_run_dir(cfg: ExperimentConfig) -> Path:
@@ -448,7 +509,10 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
              f"({jax.device_count()} device)" + (" (resumed)" if resume_from else "")]
     if progress.spread_over > 1:
         notes.append(interpolated_times_note(progress.spread_over))
-    result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start)
+    initial = None
+    if cfg.report.zero_shot_check and (cfg.trains_source or cfg.source_checkpoint or cfg.init_checkpoint):
+        initial = jax.device_get(program.initial_targets(state))
+    result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start, initial)
     (run_dir / RESUME_STATE).unlink(missing_ok=True)  # finished: the final checkpoints replace it
     result.update({"run_dir": run_dir, "compile_s": compile_s, "run_s": run_s, "output": out,
                    "interrupted": False, "state": state})

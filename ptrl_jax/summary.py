@@ -69,17 +69,24 @@ def preset_summary(
     return rows, threshold
 
 
-def ratio_table(summary: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """The freeze-ratio variants (``rho<r>``) of a preset summary, with ``rho``, sorted by it.
-    The presets 'none' and 'L1+L2' are the ends rho = 0 and rho = 1 (the same masks), and stand
-    in for them when the sweep does not list them itself. Empty without any ``rho<r>`` variant."""
-    from ptrl_jax.freeze import RATIO_PREFIX
+def ratio_table(summary: Sequence[Mapping[str, Any]], mode: str = "paper") -> list[dict[str, Any]]:
+    """The freeze-ratio variants (``rho<r>``, or ``rho<r>@semantic`` for ``mode='semantic'``)
+    of a preset summary, with ``rho``, sorted by it. The presets 'none' and 'L1+L2' (of the same
+    mode) are the ends rho = 0 and rho = 1 (the same masks), and stand in for them when the sweep
+    does not list them itself. Empty without any ratio variant of that mode."""
+    from ptrl_jax.freeze import MODE_SEPARATOR, RATIO_PREFIX
 
-    rows = [{**r, "rho": float(r["preset"][len(RATIO_PREFIX):])} for r in summary
-            if r["preset"].startswith(RATIO_PREFIX)]
+    suffix = "" if mode == "paper" else MODE_SEPARATOR + mode
+
+    def of_mode(name: str) -> str | None:
+        base, sep, m = name.partition(MODE_SEPARATOR)
+        return base if (sep + m) == suffix else None
+
+    rows = [{**r, "rho": float(of_mode(r["preset"])[len(RATIO_PREFIX):])} for r in summary
+            if of_mode(r["preset"]) is not None and of_mode(r["preset"]).startswith(RATIO_PREFIX)]
     if not rows:
         return []
-    for rho, preset in ((0.0, "none"), (1.0, "L1+L2")):
+    for rho, preset in ((0.0, "none" + suffix), (1.0, "L1+L2" + suffix)):
         end = next((r for r in summary if r["preset"] == preset), None)
         if end is not None and all(r["rho"] != rho for r in rows):
             rows.append({**end, "rho": rho})
@@ -112,13 +119,14 @@ def plot_freeze_ratio(path: Path, rows: Sequence[Mapping[str, Any]], scratch: Ma
     fig.savefig(path, dpi=110)
 
 
-def format_ratio_table(rows: Sequence[Mapping[str, Any]], png: str) -> str:
-    lines = ["## Freeze ratio", "", f"![freeze ratio]({png})", "",
+def format_ratio_table(rows: Sequence[Mapping[str, Any]], png: str, mode: str = "paper") -> str:
+    title = "## Freeze ratio" + ("" if mode == "paper" else f" ({mode} transfer)")
+    lines = [title, "", f"![freeze ratio]({png})", "",
              "| rho | final reward (mean ± std) | AUC (mean ± std) | env steps to threshold (mean ± std) | seeds reaching |",
              "|---|---|---|---|---|"]
     for r in rows:
         lines.append(
-            f"| {r['rho']:g}{'' if r['preset'].startswith('rho') else ' (' + r['preset'] + ')'} | {fmt_number(r['final_reward_mean'])} ± {fmt_number(r['final_reward_std'])} | "
+            f"| {r['rho']:g}{'' if r['preset'].startswith('rho') else ' (' + r['preset'].split('@')[0] + ')'} | {fmt_number(r['final_reward_mean'])} ± {fmt_number(r['final_reward_std'])} | "
             f"{fmt_number(r['auc_mean'])} ± {fmt_number(r['auc_std'])} | {fmt_number(r['steps_to_threshold_mean'], '{:.0f}')} ± "
             f"{fmt_number(r['steps_to_threshold_std'], '{:.0f}')} | {r['seeds_reaching_threshold']}/{r['seeds']} |"
         )

@@ -9,7 +9,10 @@ from finished runs. The rule, per target robot of an experiment:
   episode reward reaches it, for the scratch run and for the transfer run (``transfer_preset``);
 - saved = 1 - transfer / scratch, per seed (seeds are paired: same initialisation of the
   non-transferred layers and same env stream), then mean and std over the seeds where both
-  reached the threshold.
+  reached the threshold;
+- the same for the semantic transfer (``ptrl_jax/semantic.py``): its best variant among those
+  named ``<preset>@semantic`` in the run, by mean env steps to the threshold (the choice is
+  named in the row, and made on the same seeds it is reported on).
 
 In one program every variant runs in lockstep under ``vmap`` and shares one clock, so the wall
 time of each run is the stage's time at that iteration, and the wall-time saving equals the
@@ -27,7 +30,17 @@ from ptrl_jax.summary import curves_by_preset, fmt_number
 
 PAPER_AVERAGE_SAVING = 0.20
 """Paper Table IV: training with transfer took about 20 % less time on average (Isaac Gym,
-4096 envs, one RTX 4090). Its per-robot figures are not reproduced here."""
+4096 envs, one RTX 4090)."""
+
+PAPER_HOURS: dict[str, tuple[float, float]] = {
+    "xbot_l": (2.5, 3.0), "mit_humanoid": (8 / 60, 12 / 60), "cassie": (8 / 60, 11.5 / 60),
+    "tron1": (3.0, 3.38), "go2": (1.5, 1.75), "a1": (8 / 60, 12 / 60),
+    "anymal_b": (3 / 60, 3.3 / 60), "anymal_c": (3 / 60, 3.3 / 60),
+}
+"""Paper Table IV per target robot: (hours with transfer, hours without), 4096 envs on one RTX
+4090; the paper gives no seeds, thresholds or env steps."""
+
+SEMANTIC_SUFFIX = "@semantic"
 
 FIELDS = (
     "experiment", "source", "target", "transfer_preset", "seeds", "threshold",
@@ -36,6 +49,10 @@ FIELDS = (
     "scratch_wall_s_mean", "transfer_wall_s_mean",
     "steps_saved_mean", "steps_saved_std", "wall_saved_mean", "wall_saved_std",
     "seeds_both_reached",
+    "semantic_preset", "semantic_final_reward", "semantic_steps_mean", "semantic_steps_std",
+    "semantic_wall_s_mean", "semantic_steps_saved_mean", "semantic_steps_saved_std",
+    "semantic_wall_saved_mean", "semantic_wall_saved_std", "semantic_seeds_both_reached",
+    "paper_hours_transfer", "paper_hours_scratch", "paper_saved",
 )
 
 
@@ -50,41 +67,68 @@ def _stats(values: Sequence[float]) -> tuple[float, float]:
     return (float(v.mean()), float(v.std())) if len(v) else (float("nan"), float("nan"))
 
 
+def _time_to(curve: Mapping[str, np.ndarray], threshold: float) -> dict[str, np.ndarray]:
+    """Per seed: env steps and wall time at the first iteration reaching ``threshold`` (NaN: never)."""
+    i = _first_reach(curve["reward"], threshold)
+    return {"steps": np.where(i >= 0, curve["env_steps"][np.maximum(i, 0)], np.nan),
+            "wall": np.where(i >= 0, curve["wall_time_s"][np.maximum(i, 0)], np.nan)}
+
+
+def _compare(scratch: Mapping[str, np.ndarray], other: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """Savings of ``other`` against ``scratch``, per paired seed, over seeds where both reached."""
+    both = np.isfinite(scratch["steps"]) & np.isfinite(other["steps"])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        steps_saved = 1.0 - other["steps"] / scratch["steps"]
+        wall_saved = 1.0 - other["wall"] / scratch["wall"]
+    out = {}
+    out["steps_mean"], out["steps_std"] = _stats(other["steps"])
+    out["wall_s_mean"] = _stats(other["wall"])[0]
+    out["steps_saved_mean"], out["steps_saved_std"] = _stats(np.where(both, steps_saved, np.nan))
+    out["wall_saved_mean"], out["wall_saved_std"] = _stats(np.where(both, wall_saved, np.nan))
+    out["seeds_both_reached"] = int(both.sum())
+    return out
+
+
 def robot_row(
     experiment: str, source: str, target: str, rows: Sequence[Mapping[str, Any]], transfer_preset: str,
     threshold_fraction: float, final_window: int,
 ) -> dict[str, Any]:
-    """One Table IV row from the target rows of one robot (both presets present)."""
+    """One Table IV row from the target rows of one robot (scratch and ``transfer_preset``
+    present; the semantic columns are filled when a ``<preset>@semantic`` variant ran)."""
     curves = curves_by_preset(rows)
     missing = [p for p in ("scratch", transfer_preset) if p not in curves]
     if missing:
         raise ValueError(f"{experiment} -> {target}: no metrics for preset(s) {missing} "
                          f"(Table IV needs 'scratch' and the transfer preset {transfer_preset!r})")
-    scratch, transfer = curves["scratch"], curves[transfer_preset]
-    final = {name: c["reward"][:, -final_window:].mean(axis=1) for name, c in
-             (("scratch", scratch), ("transfer", transfer))}
+    final = {name: c["reward"][:, -final_window:].mean(axis=1) for name, c in curves.items()}
     threshold = float(threshold_fraction * final["scratch"].mean())
-    out = {"experiment": experiment, "source": source, "target": target, "transfer_preset": transfer_preset,
-           "seeds": int(scratch["reward"].shape[0]), "threshold": threshold,
-           "scratch_final_reward": float(final["scratch"].mean()),
-           "transfer_final_reward": float(final["transfer"].mean())}
-    firsts = {"scratch": _first_reach(scratch["reward"], threshold),
-              "transfer": _first_reach(transfer["reward"], threshold)}
-    per_seed = {}
-    for name, c in (("scratch", scratch), ("transfer", transfer)):
-        i = firsts[name]
-        per_seed[f"{name}_steps"] = np.where(i >= 0, c["env_steps"][np.maximum(i, 0)], np.nan)
-        per_seed[f"{name}_wall"] = np.where(i >= 0, c["wall_time_s"][np.maximum(i, 0)], np.nan)
-    for name in ("scratch", "transfer"):
-        out[f"{name}_steps_mean"], out[f"{name}_steps_std"] = _stats(per_seed[f"{name}_steps"])
-        out[f"{name}_wall_s_mean"] = _stats(per_seed[f"{name}_wall"])[0]
-    both = (firsts["scratch"] >= 0) & (firsts["transfer"] >= 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        steps_saved = 1.0 - per_seed["transfer_steps"] / per_seed["scratch_steps"]
-        wall_saved = 1.0 - per_seed["transfer_wall"] / per_seed["scratch_wall"]
-    out["steps_saved_mean"], out["steps_saved_std"] = _stats(np.where(both, steps_saved, np.nan))
-    out["wall_saved_mean"], out["wall_saved_std"] = _stats(np.where(both, wall_saved, np.nan))
-    out["seeds_both_reached"] = int(both.sum())
+    out: dict[str, Any] = {
+        "experiment": experiment, "source": source, "target": target, "transfer_preset": transfer_preset,
+        "seeds": int(curves["scratch"]["reward"].shape[0]), "threshold": threshold,
+        "scratch_final_reward": float(final["scratch"].mean()),
+        "transfer_final_reward": float(final[transfer_preset].mean())}
+    times = {name: _time_to(c, threshold) for name, c in curves.items()}
+    out["scratch_steps_mean"], out["scratch_steps_std"] = _stats(times["scratch"]["steps"])
+    out["scratch_wall_s_mean"] = _stats(times["scratch"]["wall"])[0]
+    paper = _compare(times["scratch"], times[transfer_preset])
+    out.update({"transfer_steps_mean": paper["steps_mean"], "transfer_steps_std": paper["steps_std"],
+                "transfer_wall_s_mean": paper["wall_s_mean"],
+                **{k: paper[k] for k in ("steps_saved_mean", "steps_saved_std", "wall_saved_mean",
+                                         "wall_saved_std", "seeds_both_reached")}})
+    semantic = [p for p in curves if p.endswith(SEMANTIC_SUFFIX)]
+    if semantic:
+        def rank(p):  # fewest mean steps to threshold; a seed that never reaches counts as never
+            steps = times[p]["steps"]
+            return (int(np.isnan(steps).sum()), float(np.nanmean(steps)) if np.isfinite(steps).any() else np.inf)
+
+        best = min(semantic, key=rank)
+        sem = _compare(times["scratch"], times[best])
+        out.update({"semantic_preset": best, "semantic_final_reward": float(final[best].mean()),
+                    **{f"semantic_{k}": v for k, v in sem.items()}})
+    hours = PAPER_HOURS.get(target)
+    if hours:
+        out.update({"paper_hours_transfer": hours[0], "paper_hours_scratch": hours[1],
+                    "paper_saved": 1.0 - hours[0] / hours[1]})
     return out
 
 
@@ -101,13 +145,23 @@ def experiment_rows(
 
 
 def average_row(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """The mean saving over robots (each robot's mean over seeds counts once)."""
+    """The mean saving over robots (each robot's mean over seeds counts once), per transfer."""
     steps = [r["steps_saved_mean"] for r in rows]
     wall = [r["wall_saved_mean"] for r in rows]
     s_mean, s_std = _stats(steps)
     w_mean, w_std = _stats(wall)
-    return {"experiment": "average", "target": f"{sum(np.isfinite(steps))} of {len(rows)} robots",
-            "steps_saved_mean": s_mean, "steps_saved_std": s_std, "wall_saved_mean": w_mean, "wall_saved_std": w_std}
+    out = {"experiment": "average", "target": f"{sum(np.isfinite(steps))} of {len(rows)} robots",
+           "steps_saved_mean": s_mean, "steps_saved_std": s_std, "wall_saved_mean": w_mean, "wall_saved_std": w_std}
+    sem = [r.get("semantic_steps_saved_mean", np.nan) for r in rows]
+    if any(np.isfinite(sem)):
+        out["semantic_steps_saved_mean"], out["semantic_steps_saved_std"] = _stats(sem)
+        out["semantic_wall_saved_mean"], out["semantic_wall_saved_std"] = _stats(
+            [r.get("semantic_wall_saved_mean", np.nan) for r in rows])
+        out["semantic_robots"] = f"{sum(np.isfinite(sem))} of {len(rows)} robots"
+    paper = [r.get("paper_saved", np.nan) for r in rows]
+    if any(np.isfinite(paper)):
+        out["paper_saved"] = _stats(paper)[0]
+    return out
 
 
 def format_markdown(rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = ()) -> str:
@@ -117,31 +171,52 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = ()
     def pct(m, s):
         return "not reached" if not np.isfinite(m) else f"{100 * m:+.1f} % ± {100 * s:.1f}"
 
+    def steps(m, s):
+        return f"{f(m / 1e6, '{:.2f}')} ± {f(s / 1e6, '{:.2f}')} M" if np.isfinite(m) else "not reached"
+
+    def hours(h):
+        return f"{h:.2f} h" if h >= 1 else f"{60 * h:.1f} min"
+
+    has_sem = any(r.get("semantic_preset") for r in rows)
     lines = ["# Table IV: training to threshold with transfer and from scratch", ""]
     lines += [f"- {n}" for n in notes]
-    lines += [
-        "",
-        "| source -> target | transfer preset | seeds | threshold | final reward scratch / transfer | "
-        "env steps to threshold: scratch | transfer | wall s: scratch | transfer | "
-        "steps saved (mean ± std) | wall time saved | seeds (both reached) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
+    head = ("| source -> target | seeds | threshold | scratch: env steps to threshold | paper transfer "
+            "(preset): steps | saved | ")
+    rule = "|---|---|---|---|---|---|"
+    if has_sem:
+        head += "semantic transfer (best preset): steps | saved | "
+        rule += "---|---|"
+    head += "final reward scratch / paper / semantic | wall s to threshold scratch / paper / semantic | paper's hours with / without (saved) |"
+    rule += "---|---|---|"
+    lines += ["", head, rule]
     for r in rows:
-        lines.append(
-            f"| {r['source']} -> {r['target']} | {r['transfer_preset']} | {r['seeds']} | {f(r['threshold'], '{:.2f}')} | "
-            f"{f(r['scratch_final_reward'], '{:.2f}')} / {f(r['transfer_final_reward'], '{:.2f}')} | "
-            f"{f(r['scratch_steps_mean'])} ± {f(r['scratch_steps_std'])} | "
-            f"{f(r['transfer_steps_mean'])} ± {f(r['transfer_steps_std'])} | "
-            f"{f(r['scratch_wall_s_mean'], '{:.1f}')} | {f(r['transfer_wall_s_mean'], '{:.1f}')} | "
-            f"{pct(r['steps_saved_mean'], r['steps_saved_std'])} | {pct(r['wall_saved_mean'], r['wall_saved_std'])} | "
-            f"{r['seeds_both_reached']}/{r['seeds']} |"
-        )
+        sem = bool(r.get("semantic_preset"))
+        line = (f"| {r['source']} -> {r['target']} | {r['seeds']} | {f(r['threshold'], '{:.2f}')} | "
+                f"{steps(r['scratch_steps_mean'], r['scratch_steps_std'])} | "
+                f"{steps(r['transfer_steps_mean'], r['transfer_steps_std'])} ({r['transfer_preset']}) | "
+                f"{pct(r['steps_saved_mean'], r['steps_saved_std'])} ({r['seeds_both_reached']}/{r['seeds']}) | ")
+        if has_sem:
+            line += (f"{steps(r['semantic_steps_mean'], r['semantic_steps_std'])} ({r['semantic_preset']}) | "
+                     f"{pct(r['semantic_steps_saved_mean'], r['semantic_steps_saved_std'])} "
+                     f"({r['semantic_seeds_both_reached']}/{r['seeds']}) | " if sem else "not run | | ")
+        line += (f"{f(r['scratch_final_reward'], '{:.2f}')} / {f(r['transfer_final_reward'], '{:.2f}')} / "
+                 f"{f(r.get('semantic_final_reward', np.nan), '{:.2f}')} | "
+                 f"{f(r['scratch_wall_s_mean'], '{:.0f}')} / {f(r['transfer_wall_s_mean'], '{:.0f}')} / "
+                 f"{f(r.get('semantic_wall_s_mean', np.nan), '{:.0f}')} | ")
+        line += (f"{hours(r['paper_hours_transfer'])} / {hours(r['paper_hours_scratch'])} "
+                 f"({100 * r['paper_saved']:.0f} %) |" if r.get("paper_hours_scratch") else "|")
+        lines.append(line)
     avg = average_row(rows)
     lines += [
         "",
-        f"**Average over {avg['target']}:** env steps saved {pct(avg['steps_saved_mean'], avg['steps_saved_std'])}, "
-        f"wall time saved {pct(avg['wall_saved_mean'], avg['wall_saved_std'])} (± = spread over robots). "
-        f"**Paper (Table IV):** about {100 * PAPER_AVERAGE_SAVING:.0f} % less training time on average "
-        f"(Isaac Gym, 4096 envs, RTX 4090); its per-robot figures are not reproduced here.",
-    ]
+        f"**Average over {avg['target']}:** env steps saved with the paper's transfer "
+        f"{pct(avg['steps_saved_mean'], avg['steps_saved_std'])}, wall time "
+        f"{pct(avg['wall_saved_mean'], avg['wall_saved_std'])} (± = spread over robots)."]
+    if "semantic_steps_saved_mean" in avg:
+        lines.append(f"With the semantic transfer (over {avg['semantic_robots']}): env steps saved "
+                     f"{pct(avg['semantic_steps_saved_mean'], avg['semantic_steps_saved_std'])}, wall time "
+                     f"{pct(avg['semantic_wall_saved_mean'], avg['semantic_wall_saved_std'])}.")
+    paper = f" ({100 * avg['paper_saved']:.0f} % over these robots' rows)" if "paper_saved" in avg else ""
+    lines.append(f"**Paper (Table IV):** about {100 * PAPER_AVERAGE_SAVING:.0f} % less training time on "
+                 f"average{paper} (Isaac Gym, 4096 envs, RTX 4090; hours, no seeds or env steps given).")
     return "\n".join(lines) + "\n"

@@ -76,6 +76,27 @@ class TestRobotRow:
         with pytest.raises(ValueError, match="scratch"):
             self.row(curves)
 
+    def test_the_best_semantic_variant_is_named_and_compared(self):
+        curves = {**self.CURVES,
+                  ("none@semantic", 0): [0, 0, 3, 3, 3], ("none@semantic", 1): [0, 0, 3, 3, 3],  # 300, 300
+                  ("L2@semantic", 0): [3, 3, 3, 3, 3], ("L2@semantic", 1): [0, 3, 3, 3, 3]}    # 100, 200
+        row = self.row(curves)
+        assert row["semantic_preset"] == "L2@semantic"
+        assert row["semantic_steps_mean"] == 150 and row["semantic_steps_std"] == 50
+        # seed 0: 1 - 100/400; seed 1: 1 - 200/400
+        assert row["semantic_steps_saved_mean"] == pytest.approx(0.625) and row["semantic_seeds_both_reached"] == 2
+        assert row["paper_hours_scratch"] == 3.0 and row["paper_saved"] == pytest.approx(1 - 2.5 / 3.0)
+        avg = transfer_table.average_row([row])
+        assert avg["semantic_steps_saved_mean"] == pytest.approx(0.625)
+        md = transfer_table.format_markdown([row])
+        assert "(L2@semantic) | +62.5 % ± 12.5 (2/2)" in md and "2.50 h / 3.00 h (17 %)" in md
+
+    def test_a_semantic_variant_that_never_reaches_ranks_last(self):
+        curves = {**self.CURVES,
+                  ("none@semantic", 0): [0, 0, 0, 3, 3], ("none@semantic", 1): [0, 0, 0, 3, 3],  # 400, 400
+                  ("L2@semantic", 0): [3, 3, 3, 3, 3], ("L2@semantic", 1): [0] * 5}              # 100, never
+        assert self.row(curves)["semantic_preset"] == "none@semantic"
+
     def test_average_counts_each_robot_once(self):
         a = {"steps_saved_mean": 0.1, "wall_saved_mean": 0.2}
         b = {"steps_saved_mean": 0.3, "wall_saved_mean": float("nan")}
@@ -154,7 +175,8 @@ class TestBatchRun:
                                           and r["seed"] == s][-10:]) for s in range(2)])
         assert table[0]["threshold"] == pytest.approx(0.9 * scratch_final, abs=1e-5)
         assert table[0]["transfer_preset"] == "L1"
-        assert "go2 -> xbot_l | L1 | 2 |" in (batch_dir / "table4.md").read_text()
+        md = (batch_dir / "table4.md").read_text()
+        assert "| go2 -> xbot_l | 2 |" in md and "(L1) |" in md
 
 
 class TestRatioTable:
