@@ -36,6 +36,7 @@ from brax.envs.base import PipelineEnv, State
 from brax.io import mjcf
 
 from envs import randomization, semantics
+from envs.mujoco_engine import ENGINES, MujocoStepper
 from envs.randomization import RandomizationConfig
 
 ASSETS_DIR = Path(__file__).resolve().parents[1] / "assets"
@@ -110,6 +111,10 @@ class LocomotionConfig:
     """Velocity command sampling."""
     randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
     """Domain randomization (``envs.randomization``); off unless enabled."""
+    engine: str = "mjx"
+    """Physics engine: ``mjx`` (MJX, in JAX: GPU or CPU) or ``mujoco`` (MuJoCo C's batched
+    stepper on the CPU's threads, through a host callback; ``envs.mujoco_engine``). The env's
+    own code is the same for both."""
     joint_roles: tuple[str, ...] = ()
     """Each actuated joint's role, ``"<limb>:<kind>"`` in actuator order (``envs.semantics``:
     limbs FL FR RL RR or L R; kinds hip_roll, hip_yaw, hip_pitch, knee, tarsus, ankle_pitch,
@@ -125,6 +130,8 @@ class LocomotionConfig:
             raise ValueError("solver_iterations and ls_iterations must be >= 1")
         if any(k < 0 for k in self.kp) or any(k < 0 for k in self.kd):
             raise ValueError("PD gains kp and kd must be >= 0")
+        if self.engine not in ENGINES:
+            raise ValueError(f"engine must be one of {ENGINES}, got {self.engine!r}")
 
     @property
     def ctrl_dt(self) -> float:
@@ -199,6 +206,7 @@ class LeggedEnv(PipelineEnv):
         self._joint_lower = jnp.asarray(lo, jnp.float32)
         self._joint_upper = jnp.asarray(hi, jnp.float32)
         self._base_body = int(mj_model.jnt_bodyid[0])  # the free joint's body
+        self._stepper = MujocoStepper(mj_model, self._base_body) if config.engine == "mujoco" else None
         self._reward_weights: Mapping[str, float] = dataclasses.asdict(config.rewards)  # type: ignore[attr-defined]
         self.joint_names = [mj_model.joint(j).name for j in range(1, mj_model.njnt)]
         self.joint_roles = (semantics.parse_roles(config.joint_roles, self.joint_names, config.asset)
@@ -321,10 +329,11 @@ class LeggedEnv(PipelineEnv):
         """``decimation`` physics steps under the PD law; ``info`` carries the episode's domain
         randomization draw (read only when randomization is enabled)."""
         target = self.joint_targets(action)
-        sys, kp_scale, strength = self.sys, 1.0, 1.0
+        sys, kp_scale, strength, draw = self.sys, 1.0, 1.0, None
         if self.config.randomization.enabled:
             draw = info["randomization"]
-            sys = randomization.apply(self.sys, draw, self._base_body)
+            if self._stepper is None:
+                sys = randomization.apply(self.sys, draw, self._base_body)
             kp_scale, strength = draw["kp_scale"], draw["motor_strength"]
             data = self._push(data, info)
 
@@ -332,6 +341,8 @@ class LeggedEnv(PipelineEnv):
             # mjx.step on plain mjx.Data: Brax's pipeline wrapper would also rebuild its own
             # link transforms and contacts every substep, which nothing here reads.
             tau = self.pd_torque(d, target, kp_scale, strength)
+            if self._stepper is not None:  # engine=mujoco: MuJoCo C applies the same draw
+                return self._stepper.step(d.replace(ctrl=tau), draw), None
             return mjx.step(sys, d.replace(ctrl=tau)), None
 
         data, _ = jax.lax.scan(substep, data, None, length=self.config.decimation)

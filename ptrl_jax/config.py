@@ -255,6 +255,9 @@ class ExperimentConfig:
     units of each frozen (``freeze.ratio_preset``)."""
     transfer: TransferConfig = field(default_factory=TransferConfig)
     """How transferring variants initialise the target (paper or semantic)."""
+    engine: str = "mjx"
+    """Physics engine of every stage: ``mjx`` (in JAX; GPU or CPU) or ``mujoco`` (MuJoCo C's
+    batched stepper on the CPU threads, through a host callback; ``envs.mujoco_engine``)."""
     init_checkpoint: str = ""
     """A target checkpoint to start every transferring variant from (``python -m
     ptrl_jax.transfer`` writes one; any checkpoint of the target robot serves): no source is
@@ -292,6 +295,10 @@ class ExperimentConfig:
                              f"optionally with {MODE_SEPARATOR}semantic or {MODE_SEPARATOR}paper")
         for p in self.freeze_presets:
             variant(p)  # a bad mode suffix names itself
+        from envs.mujoco_engine import ENGINES
+
+        if self.engine not in ENGINES:
+            raise ValueError(f"engine must be one of {list(ENGINES)}, got {self.engine!r}")
         if self.init_checkpoint and self.source_checkpoint:
             raise ValueError("init_checkpoint and source_checkpoint exclude each other: the first starts "
                              "the target from a transferred checkpoint, the second transfers from a source")

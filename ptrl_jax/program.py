@@ -21,6 +21,7 @@ hook), so XLA's persistent compilation cache can keep it between processes.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Callable, NamedTuple
 
 import jax
@@ -115,10 +116,11 @@ def make_program(
 ) -> Program:
     """``progress(stage_name)`` returns that stage's progress hook (or None)."""
     hook = progress or (lambda stage: None)
-    source_env = envs.make(cfg.source.robot, cfg.source.env)
+    engine = lambda env_cfg: dataclasses.replace(env_cfg, engine=cfg.engine)  # noqa: E731
+    source_env = envs.make(cfg.source.robot, engine(cfg.source.env))
     source = make_train(source_env, cfg.source.ppo, cfg.network.source, hook("source"))
     stages = cfg.targets
-    target_envs = {r: envs.make(r, st.env) for r, st in stages.items()}
+    target_envs = {r: envs.make(r, engine(st.env)) for r, st in stages.items()}
     targets = {r: make_train(target_envs[r], st.ppo, cfg.network, hook("target")) for r, st in stages.items()}
     presets = cfg.variants
     n_seeds = cfg.seeds

@@ -9,15 +9,17 @@ last saved state (``resume_state.npz``) to the same result an uninterrupted run 
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 
-if __name__ == "__main__" and "scale=smoke" in sys.argv[1:]:
+if __name__ == "__main__":
     # Before jax's backend exists (the imports below create it): compile-bound smoke runs
-    # compile about 2.5x faster with these XLA settings (ptrl_jax/xla_flags.py).
-    from ptrl_jax.xla_flags import use_fast_compile
+    # compile about 2.5x faster with the fast-compile XLA settings, and a resumed run compiles
+    # with the flags it was saved with (ptrl_jax/xla_flags.py).
+    from ptrl_jax.xla_flags import configure_from_argv
 
-    use_fast_compile()
+    configure_from_argv(sys.argv[1:])
 
 import threading
 import time
@@ -381,9 +383,29 @@ class StopRequest:
         return False
 
 
+def runtime_fingerprint(cfg: ExperimentConfig) -> dict[str, str]:
+    """What a run's float results depend on besides its config and state: library versions,
+    XLA flags, the device and the physics engine. A resume must match it bitwise."""
+    import jaxlib
+    import mujoco
+
+    return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "mujoco": mujoco.__version__,
+            "xla_flags": os.environ.get("XLA_FLAGS", ""), "device": jax.devices()[0].device_kind,
+            "engine": cfg.engine}
+
+
+def check_runtime(saved: dict[str, str], cfg: ExperimentConfig, run_dir: Path) -> None:
+    """Refuse to resume under another runtime, naming each difference."""
+    now = runtime_fingerprint(cfg)
+    diff = [f"{k}: saved {saved[k]!r}, now {now[k]!r}" for k in now if k in saved and saved[k] != now[k]]
+    if diff:
+        raise ConfigError(f"resume={run_dir}: the run was saved under another runtime, so it would not "
+                          f"continue bitwise ({'; '.join(diff)}); resume it where it ran, or start it anew")
+
+
 def save_resume_state(cfg: ExperimentConfig, run_dir: Path, state: Any, progress: "Progress") -> None:
     times = [[s, r, i, t] for (s, r, i), t in progress.times.items()]
-    meta = {"experiment": cfg.name, "jax": jax.__version__, "times": times,
+    meta = {"experiment": cfg.name, "jax": jax.__version__, "runtime": runtime_fingerprint(cfg), "times": times,
             "stage_start": progress.stage_start,
             "source_iteration": Program.iterations(state)[0],
             "target_iteration": Program.iterations(state)[1]}
@@ -450,7 +472,7 @@ def load_init_target(cfg: ExperimentConfig, program: Program) -> Any:
 def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array, budget: np.int32):
     """(program, jitted init, compiled advance) for ``cfg``."""
     cache_key = (cfg.source, cfg.target, cfg.extra_targets, cfg.network, cfg.variants, cfg.seeds,
-                 bool(cfg.source_checkpoint), bool(cfg.init_checkpoint), cfg.trains_source, cfg.transfer)
+                 bool(cfg.source_checkpoint), bool(cfg.init_checkpoint), cfg.trains_source, cfg.transfer, cfg.engine)
     if not progress.show and cache_key in _PROGRAMS:
         return _PROGRAMS[cache_key]
     program = make_program(cfg, progress.hook)
@@ -531,6 +553,7 @@ def resume(run_dir: Path, show_progress: bool | None = None) -> dict:
                           + (" (the run finished; nothing to resume)" if done else ""))
     with open(config_path) as f:
         cfg = build_config(flatten(yaml.safe_load(f)))
+    check_runtime(artifacts.read_state_meta(run_dir / RESUME_STATE).get("runtime", {}), cfg, run_dir)
     return run(cfg, show_progress=show_progress, resume_from=run_dir)
 
 

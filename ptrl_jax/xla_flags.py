@@ -9,6 +9,9 @@ CPU runtime as well; tracing (about 30 s) is unchanged.
 XLA reads these flags once, when jax creates its CPU backend, so they must be set before
 anything runs a jax computation (importing brax or MJX already does). ``python -m ptrl_jax.run``
 sets them for ``scale=smoke`` before its imports; ``tests/conftest.py`` sets them for the suite.
+A resumed run (``resume=DIR``) takes the XLA flags its state was computed with from the saved
+state (``flags_of_saved_run``), whatever its command line says: other flags compile another
+program, whose float results can differ in the last bits.
 This module imports nothing from jax.
 """
 
@@ -26,3 +29,34 @@ def use_fast_compile() -> None:
     current = os.environ.get("XLA_FLAGS", "")
     extra = [f for f in FAST_COMPILE_FLAGS if f.split("=")[0] not in current]
     os.environ["XLA_FLAGS"] = " ".join(filter(None, [current, *extra]))
+
+
+def flags_of_saved_run(argv: list[str]) -> str | None:
+    """The XLA_FLAGS recorded in ``resume=DIR``'s saved state, when ``argv`` resumes a run and
+    the state records them (None otherwise). Reads the state with numpy only."""
+    import json
+    from pathlib import Path
+
+    run_dir = next((a.split("=", 1)[1] for a in argv if a.startswith("resume=")), None)
+    if run_dir is None:
+        return None
+    try:
+        import numpy as np
+
+        with np.load(Path(run_dir) / "resume_state.npz") as z:
+            meta = json.loads(bytes(z["__meta__"]).decode())
+        return meta.get("runtime", {}).get("xla_flags")
+    except Exception:  # no or damaged state: run.resume names the problem
+        return None
+
+
+def configure_from_argv(argv: list[str]) -> None:
+    """What ``python -m ptrl_jax.run`` does before its imports: a resumed run gets its saved
+    XLA flags, a ``scale=smoke`` run the fast-compile flags."""
+    saved = flags_of_saved_run(argv)
+    if saved is not None:
+        if "XLA_FLAGS" not in os.environ:
+            os.environ["XLA_FLAGS"] = saved
+        return
+    if "scale=smoke" in argv:
+        use_fast_compile()

@@ -11,7 +11,7 @@ from ptrl_jax import artifacts
 # One xdist worker runs every test of the shared smoke run (tests/conftest.py: smoke_run).
 pytestmark = pytest.mark.xdist_group("smoke_go2_to_xbot")
 
-PRESETS = ("none", "L1", "L2", "L1+L2", "scratch")
+PRESETS = ("none", "L1", "L2", "L1+L2", "scratch", "none@semantic", "L2@semantic")
 RATIOS = ("rho0.25", "rho0.5", "rho0.75")  # go2_to_xbot.yaml's freeze_ratio
 VARIANTS = PRESETS + RATIOS
 
@@ -21,6 +21,7 @@ class TestSmokeRunOutputs:
         cfg, run_dir = smoke_run
         names = {p.name for p in run_dir.iterdir()}
         expected = {"config.yaml", "metrics.csv", "curves.png", "freeze_ratio.png", "report.md", "source.npz"}
+        assert "## Zero-shot" in (run_dir / "report.md").read_text()
         expected |= {f"target_{p}_seed{s}.npz" for p in VARIANTS for s in range(cfg.seeds)}
         assert cfg.variants == VARIANTS and cfg.seeds == 2
         assert expected <= names, expected - names
@@ -59,6 +60,20 @@ class TestSmokeRunOutputs:
         assert not np.array_equal(none["layer_1"]["w"], src["layer_1"]["w"])
         assert both["meta"]["robot"] == "xbot_l" and both["meta"]["preset"] == "L1+L2"
         assert set(both["normalizer"]) == {"state", "privileged_state"}
+
+    def test_semantic_variants_carry_the_source_and_freeze_as_the_paper_does(self, smoke_run):
+        _, run_dir = smoke_run
+        src = artifacts.load_checkpoint(run_dir / "source.npz")["params"]
+        l2 = artifacts.load_checkpoint(run_dir / "target_L2@semantic_seed0.npz")
+        none = artifacts.load_checkpoint(run_dir / "target_none@semantic_seed1.npz")["params"]
+        scratch = artifacts.load_checkpoint(run_dir / "target_scratch_seed1.npz")["params"]
+        assert np.array_equal(l2["params"]["actor"]["layer_2"]["w"], src["actor"]["layer_2"]["w"])  # frozen
+        assert l2["frozen"]["actor"]["layer_2"]["w"].all() and not l2["frozen"]["actor"]["layer_0"]["w"].any()
+        assert l2["meta"]["preset"] == "L2@semantic"
+        # The critic's hidden layers start from the source's (the paper's transfer leaves them fresh):
+        # after two iterations of fine-tuning they are still near the source's, scratch's are not.
+        near = lambda p: float(np.abs(p["critic"]["layer_1"]["w"] - src["critic"]["layer_1"]["w"]).max())  # noqa: E731
+        assert near(none) < 0.05 < near(scratch)
 
     def test_freeze_ratio_freezes_the_first_units(self, smoke_run):
         _, run_dir = smoke_run

@@ -29,23 +29,35 @@ def held_default_pose(request):
     default pose), all under one jit (one compile per robot)."""
     robot = request.param
     env = envs.make(robot)
-    steps = int(round(2.0 / env.config.ctrl_dt))
-    zeros = jnp.zeros((4, env.action_size))
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    return robot, env, reset_and_hold(env, keys, int(round(2.0 / env.config.ctrl_dt)))
+
+
+def reset_and_hold(env, keys, steps):
+    """Reset len(keys) envs and apply zero actions for ``steps`` control steps under one jit:
+    (first state, last state, (done, base height, finite, qpos, reward) per step)."""
+    zeros = jnp.zeros((len(keys), env.action_size))
 
     @jax.jit
-    def reset_and_hold(keys):
+    def run(keys):
         first = jax.vmap(env.reset)(keys)
 
         def step(state, _):
             nxt = jax.vmap(env.step)(state, zeros)
             leaves = jax.tree.leaves((nxt.obs, nxt.reward, nxt.metrics))
             finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
-            return nxt, (nxt.done, nxt.pipeline_state.qpos[:, 2], finite)
+            return nxt, (nxt.done, nxt.pipeline_state.qpos[:, 2], finite, nxt.pipeline_state.qpos, nxt.reward)
 
         last, trace = jax.lax.scan(step, first, None, length=steps)
         return first, last, trace
 
-    return robot, env, reset_and_hold(jax.random.split(jax.random.PRNGKey(0), 4))
+    return run(keys)
+
+
+# engine=mujoco against engine=mjx over the first 10 control steps of the hold above (the same
+# resets, noise included): the sim-to-sim tolerances of tests/test_gym_env.py (positions, per-step
+# reward). The bipeds' looser bound is MJX's box-sole contacts (2 where MuJoCo C has 5).
+ENGINE_TOLERANCE = {"quadruped": (2e-3, 2e-3), "biped": (5e-2, 1e-2)}
 
 
 # Physics, not a bug: the bipeds cannot stand on a fixed-target PD law with their reference gains
@@ -57,7 +69,7 @@ PASSIVELY_UNSTABLE = {"xbot_l", "mit_humanoid", "cassie", "tron1"}
 
 class TestRegistryWalk:
     def test_sizes_finite_terms_and_stable_types(self, held_default_pose):
-        robot, env, (first, last, (_, _, finite)) = held_default_pose
+        robot, env, (first, last, (_, _, finite, _, _)) = held_default_pose
         obs, priv = expected_sizes(env)
         assert first.obs["state"].shape == (4, obs) and first.obs["privileged_state"].shape == (4, priv)
         assert np.all(np.asarray(finite)), f"{robot}: non-finite obs, reward or metrics"
@@ -67,12 +79,28 @@ class TestRegistryWalk:
         assert all(jax.tree.leaves(same_type)), f"{robot}: the state type changed across steps"
 
     def test_zero_actions_hold_the_default_pose_for_2s(self, held_default_pose):
-        robot, env, (_, _, (done, height, _)) = held_default_pose
+        robot, env, (_, _, (done, height, _, _, _)) = held_default_pose
         if robot in PASSIVELY_UNSTABLE:  # strict: a robot that stops falling must leave the set
             assert np.any(np.asarray(done)), f"{robot} held its pose: take it out of PASSIVELY_UNSTABLE"
             pytest.xfail(f"{robot} is passively unstable under its reference PD gains (see PASSIVELY_UNSTABLE)")
         assert not np.any(np.asarray(done)), f"{robot} fell within 2 s of holding its default pose"
         assert float(np.min(height)) > env.config.termination_height
+
+
+class TestEngines:
+    def test_mujoco_c_engine_agrees_with_mjx_over_10_control_steps(self, held_default_pose):
+        robot, env, (_, _, (_, _, _, qpos, reward)) = held_default_pose
+        c_env = envs.make(robot, dataclasses.replace(env.config, engine="mujoco"))
+        _, _, (_, _, finite, c_qpos, c_reward) = reset_and_hold(c_env, jax.random.split(jax.random.PRNGKey(0), 4), 10)
+        assert np.all(np.asarray(finite))
+        pos_tol, reward_tol = ENGINE_TOLERANCE[env.family_name]
+        dq = float(np.abs(np.asarray(c_qpos) - np.asarray(qpos[:10])).max())
+        dr = float(np.abs(np.asarray(c_reward) - np.asarray(reward[:10])).max())
+        assert dq < pos_tol and dr < reward_tol, (robot, dq, dr)
+
+    def test_an_unknown_engine_is_refused(self):
+        with pytest.raises(ValueError, match="engine must be one of"):
+            dataclasses.replace(envs.default_config("go2"), engine="physx")
 
 
 class TestGo2Observation:

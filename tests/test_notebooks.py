@@ -61,7 +61,8 @@ class TestTransferTableNotebook:
         ns = execute(NOTEBOOKS / "transfer_table.ipynb", {"RUNS_DIR": tmp_path})
         (row,) = ns["rows"]
         assert (row["source"], row["target"], row["transfer_preset"], row["seeds"]) == ("go2", "xbot_l", "L2", 2)
-        assert set(ns["curves"]) == {"none", "L1", "L2", "L1+L2", "scratch", "rho0.25", "rho0.5", "rho0.75"}
+        assert set(ns["curves"]) == {"none", "L1", "L2", "L1+L2", "scratch", "rho0.25", "rho0.5", "rho0.75",
+                                     "none@semantic", "L2@semantic"}
 
     def test_shows_a_finished_batch_without_running(self, tmp_path, capsys):
         (tmp_path / "table4.md").write_text("# Table IV: stand-in\n")

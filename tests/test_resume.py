@@ -25,7 +25,12 @@ pytestmark = pytest.mark.xdist_group("smoke_go2_to_xbot")
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def start_smoke_run(runs_dir: Path) -> subprocess.Popen:
+def start_smoke_run(runs_dir: Path, *extra: str, exp: str = "go2_to_xbot") -> subprocess.Popen:
+    return start_cli(["exp=" + exp, "scale=smoke", f"runs_dir={runs_dir}", *extra])
+
+
+def start_cli(args: list[str]) -> subprocess.Popen:
+    """``python -m ptrl_jax.run ARGS`` as a user types it, in a new process."""
     env = {
         **os.environ,
         "PYTHONPATH": str(ROOT),
@@ -34,14 +39,14 @@ def start_smoke_run(runs_dir: Path) -> subprocess.Popen:
         "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "2",
         "JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS": "0",  # as conftest (see there)
     }
-    cmd = [sys.executable, "-m", "ptrl_jax.run", "exp=go2_to_xbot", "scale=smoke", f"runs_dir={runs_dir}"]
+    cmd = [sys.executable, "-m", "ptrl_jax.run", *args]
     return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def wait_for_saved_state(runs_dir: Path, proc: subprocess.Popen, timeout_s: float = 600) -> Path:
+def wait_for_saved_state(runs_dir: Path, proc: subprocess.Popen, timeout_s: float = 600, exp: str = "go2_to_xbot") -> Path:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        found = list(runs_dir.glob(f"go2_to_xbot/*/{run_cli.RESUME_STATE}"))
+        found = list(runs_dir.glob(f"{exp}/*/{run_cli.RESUME_STATE}"))
         if found:
             return found[0].parent
         if proc.poll() is not None:
@@ -78,6 +83,59 @@ class TestKillAndResume:
                 if key != "meta":
                     assert np.array_equal(ref[key], got[key]), (ckpt.name, key)  # bitwise
         assert not (run_dir / run_cli.RESUME_STATE).exists()  # finished: state removed
+
+
+@pytest.mark.xdist_group("engine_mujoco_resume")
+class TestKillAndResumeWithMujocoC:
+    def test_kill_9_then_resume_from_the_command_line_is_bitwise(self, tmp_path):
+        """engine=mujoco: the physics state (warm start included) travels in the program state,
+        so a run killed after its first checkpoint and resumed by ``python -m ptrl_jax.run
+        resume=DIR``, a new process, ends bitwise where an uninterrupted run does."""
+        args = ["engine=mujoco", "checkpoint_every=1", "report.zero_shot_check=false"]
+        reference = start_smoke_run(tmp_path / "ref", *args, exp="go2_to_a1")
+        out, _ = reference.communicate(timeout=900)
+        assert reference.returncode == 0, out
+        (ref_dir,) = (tmp_path / "ref" / "go2_to_a1").iterdir()
+
+        proc = start_smoke_run(tmp_path / "cut", *args, exp="go2_to_a1")
+        run_dir = wait_for_saved_state(tmp_path / "cut", proc, exp="go2_to_a1")
+        proc.kill()  # SIGKILL: no handler runs
+        proc.wait()
+        assert not (run_dir / "report.md").exists(), "the run finished before it was killed"
+        resumed = start_cli([f"resume={run_dir}"])
+        out, _ = resumed.communicate(timeout=900)
+        assert resumed.returncode == 0, out
+        assert metrics_without_wall_time(run_dir) == metrics_without_wall_time(ref_dir)
+        names = sorted(p.name for p in ref_dir.glob("*.npz"))
+        assert names and names == sorted(p.name for p in run_dir.glob("*.npz"))
+        for name in names:
+            ref, got = np.load(ref_dir / name), np.load(run_dir / name)
+            for key in ref.files:
+                if key != "meta":
+                    assert np.array_equal(ref[key], got[key]), (name, key)  # bitwise
+
+
+class TestResumeUnderAnotherRuntime:
+    def test_is_refused_naming_the_difference(self, tmp_path):
+        (tmp_path / "config.yaml").write_text("name: go2_to_xbot\nscale: smoke\n")
+        runtime = {**run_cli.runtime_fingerprint(run_cli.build_config({"scale": "smoke"})), "xla_flags": "--xla_other=1",
+                   "jax": "0.0.1"}
+        artifacts.save_state(tmp_path / run_cli.RESUME_STATE, {"x": np.zeros(1)}, {"runtime": runtime})
+        with pytest.raises(ConfigError, match=r"another runtime.*jax: saved '0.0.1'.*xla_flags: saved '--xla_other=1'"):
+            run_cli.resume(tmp_path)
+        assert run_cli.main([f"resume={tmp_path}"]) == 2
+
+    def test_a_resumed_process_takes_the_saved_xla_flags(self, tmp_path, monkeypatch):
+        from ptrl_jax.xla_flags import configure_from_argv
+
+        artifacts.save_state(tmp_path / run_cli.RESUME_STATE, {"x": np.zeros(1)},
+                             {"runtime": {"xla_flags": "--xla_backend_optimization_level=0"}})
+        monkeypatch.delenv("XLA_FLAGS", raising=False)
+        configure_from_argv([f"resume={tmp_path}"])
+        assert os.environ["XLA_FLAGS"] == "--xla_backend_optimization_level=0"
+        monkeypatch.delenv("XLA_FLAGS")
+        configure_from_argv(["exp=go2_to_xbot", "scale=cpu"])
+        assert "XLA_FLAGS" not in os.environ
 
 
 class TestCtrlC:

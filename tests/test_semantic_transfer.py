@@ -218,3 +218,46 @@ class TestVariantNames:
                                               "freeze_ratio=[0.5]"])
         assert cfg.variants == ("L2@semantic", "none", "scratch", "rho0.5@semantic")
         assert cfg.semantic and cfg.transfer.mode == "semantic"
+
+
+@pytest.mark.xdist_group("smoke_go2_to_xbot")  # uses the smoke run of test_end_to_end
+class TestTransferTool:
+    def test_writes_a_checkpoint_that_a_run_accepts(self, smoke_run, tmp_path, capsys):
+        from ptrl_jax import artifacts, transfer
+        from ptrl_jax.overrides import load_experiment
+        from ptrl_jax.program import make_program
+        from ptrl_jax.run import load_init_target
+
+        _, run_dir = smoke_run
+        out = tmp_path / "xbot_init.npz"
+        assert transfer.main([f"source={run_dir / 'source.npz'}", "target=xbot_l", "mode=semantic", f"out={out}"]) == 0
+        ckpt = artifacts.load_checkpoint(out)
+        assert ckpt["meta"]["robot"] == "xbot_l" and ckpt["meta"]["transfer"]["mode"] == "semantic"
+        knee = next(j for j in ckpt["meta"]["transfer"]["joints"] if j["target"] == "left_knee_joint")
+        assert knee == {"target": "left_knee_joint", "source": "RL_calf_joint", "factor": -1.0}
+        src = artifacts.load_checkpoint(run_dir / "source.npz")["params"]
+        assert np.array_equal(ckpt["params"]["critic"]["layer_2"]["w"], src["critic"]["layer_2"]["w"])
+
+        cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"init_checkpoint={out}", "freeze_presets=[L2,scratch]",
+                                              "freeze_ratio=[]"])
+        assert not cfg.trains_source and cfg.source_iterations == 0
+        program = make_program(cfg)
+        start = load_init_target(cfg, program)
+        state = jax.eval_shape(program.init, jax.random.PRNGKey(0), None, start)  # the run's own check
+        assert state.init_target["params"]["actor"]["layer_0"]["w"].shape == (705, 512)
+        first = program.initial_targets(jax.jit(program.init)(jax.random.PRNGKey(0), None, start))["xbot_l"]
+        assert np.array_equal(first.params["actor"]["layer_0"]["w"][0, 0], ckpt["params"]["actor"]["layer_0"]["w"])
+        assert not np.array_equal(first.params["actor"]["layer_0"]["w"][1, 0], ckpt["params"]["actor"]["layer_0"]["w"])
+
+    def test_refusals_name_what_is_wrong(self, smoke_run, tmp_path, capsys):
+        from ptrl_jax import transfer
+
+        _, run_dir = smoke_run
+        assert transfer.main([f"source={run_dir / 'source.npz'}", "target=xbot", f"out={tmp_path / 'x.npz'}"]) == 2
+        assert "unknown robot 'xbot'" in capsys.readouterr().err
+        assert transfer.main([f"source={run_dir / 'source.npz'}", "target=a1", "mode=clever", f"out={tmp_path / 'x.npz'}"]) == 2
+        assert "mode='clever'" in capsys.readouterr().err
+        assert transfer.main([f"source={run_dir / 'source.npz'}", "target=a1", f"out={tmp_path / 'x.npz'}",
+                              "joint_map=[FL_hip_joint:FL_hipp_joint]"]) == 2
+        assert "did you mean 'FL_hip_joint'" in capsys.readouterr().err
+        assert not (tmp_path / "x.npz").exists()
