@@ -214,6 +214,11 @@ class LeggedEnv(PipelineEnv):
         self.joint_signs = (semantics.joint_axis_signs(mj_model, self.joint_roles)
                             if self.joint_roles else None)
 
+    @property
+    def reward_names(self) -> tuple[str, ...]:
+        """The reward terms, in the order ``metrics`` logs them as ``reward/<name>``."""
+        return tuple(self._reward_weights)
+
     # ----- to be provided by a family -------------------------------------------------------
     family_name = "legged"
     """The family's name; entries that only compare within a family (base height) carry it."""
@@ -419,7 +424,11 @@ class LeggedEnv(PipelineEnv):
         reset_obs, reset_info = self._observe(reset_data, reset_info)
         for k in ("truncation", "termination", "nonfinite"):
             reset_info[k] = t.info[k]
-        info = jax.tree.map(lambda r, c: jnp.where(done, r, c), reset_info, t.info)
+        # Only the env's own keys reset: wrappers (Brax's EpisodeWrapper, AutoResetWrapper) keep
+        # theirs in the same dict, and their values pass through.
+        info = {**t.info, **{k: jax.tree.map(lambda r, c: jnp.where(done, r, c), v, t.info[k])
+                             for k, v in reset_info.items()}}
         next_obs = jax.tree.map(lambda r, c: jnp.where(done, r, c), reset_obs, t.obs)
         info["final_obs"] = t.obs
-        return State(reset_data, next_obs, t.reward, done.astype(jnp.float32), t.metrics, info)
+        metrics = {**state.metrics, **t.metrics}  # a wrapper's own metrics keys pass through
+        return State(reset_data, next_obs, t.reward, done.astype(jnp.float32), metrics, info)

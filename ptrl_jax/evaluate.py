@@ -19,6 +19,7 @@ prints both results.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import sys
 from pathlib import Path
@@ -126,21 +127,61 @@ def fixed_command_config(env_cfg: Any, command: tuple[float, float, float], seco
                                init_joint_noise=0.0, init_base_vel_noise=0.0, randomization=randomization)
 
 
+class Actor:
+    """``act(raw observation dict, key) -> action``: the Gaussian's mean (the key is unused), or
+    with ``stochastic`` a sample from the Gaussian, as the training rollouts act. ``step`` is
+    the same with the key split inside, jitted once per network and mode and shared by every
+    actor (policies evaluated one after another compile once)."""
+
+    def __init__(self, params, normalizer, network: NetworkConfig, normalize_observations: bool, stochastic: bool):
+        self.params, self.normalizer = params, normalizer
+        self._apply = _actor_fn(network, normalize_observations, stochastic)
+        self._step = _actor_step(network, normalize_observations, stochastic)
+
+    def __call__(self, obs, key):
+        return self._apply(self.params, self.normalizer, obs, key)
+
+    def step(self, obs, key):
+        """(action, next key) in one jitted dispatch."""
+        return self._step(self.params, self.normalizer, obs, key)
+
+
+@functools.lru_cache(maxsize=None)
+def _actor_fn(network: NetworkConfig, normalize_observations: bool, stochastic: bool):
+    def apply(params, normalizer, obs, key):
+        policy = make_policy(params, network, deterministic=not stochastic)
+        return policy(normalize_obs(normalizer, obs, normalize_observations), key)
+
+    return apply
+
+
+@functools.lru_cache(maxsize=None)
+def _actor_step(network: NetworkConfig, normalize_observations: bool, stochastic: bool):
+    apply = _actor_fn(network, normalize_observations, stochastic)
+
+    @jax.jit
+    def step(params, normalizer, obs, key):
+        key, action_key = jax.random.split(key)
+        return apply(params, normalizer, obs, action_key), key
+
+    return step
+
+
 def make_actor(params: Any, normalizer: Any, network: NetworkConfig, normalize_observations: bool = True,
-               stochastic: bool = False) -> Callable[[Mapping[str, jax.Array], jax.Array], jax.Array]:
+               stochastic: bool = False) -> Actor:
     """``act(raw observation dict, key) -> action``: the Gaussian's mean (the key is unused), or
     with ``stochastic`` a sample from the Gaussian, as the training rollouts act.
 
     Why both: a policy can owe its motion to the exploration noise. Go2 trained for 240
     iterations stands under its mean action (0.075 m/s at vx = 0.5) but walks 0.40 to 0.49 m/s
     with sampled actions (README), so the deterministic check and the training reward disagree."""
+    return Actor(params, normalizer, network, normalize_observations, stochastic)
 
-    policy = make_policy(params, network, deterministic=not stochastic)
 
-    def act(obs, key):
-        return policy(normalize_obs(normalizer, obs, normalize_observations), key)
-
-    return act
+@functools.lru_cache(maxsize=16)
+def _gym_env(robot: str, env_cfg: Any):
+    """The MuJoCo C view of a (robot, config), built once (its jitted code compiles once)."""
+    return envs.LocomotionGymEnv(robot, env_cfg)
 
 
 def rollout_mjx(robot: str, env_cfg: Any, actor, command, seconds: float, seed: int = 0,
@@ -184,12 +225,15 @@ def rollout_mjx(robot: str, env_cfg: Any, actor, command, seconds: float, seed: 
 
 def rollout_mujoco(robot: str, env_cfg: Any, actor, command, seconds: float, seed: int = 0) -> dict[str, Any]:
     """The same rollout in the MuJoCo C env (``envs.gym_env``), with the same records."""
-    gym_env = envs.LocomotionGymEnv(robot, fixed_command_config(env_cfg, command, seconds))
+    gym_env = _gym_env(robot, fixed_command_config(env_cfg, command, seconds))
     steps = int(round(seconds / gym_env.config.ctrl_dt))
-    @jax.jit
-    def act(obs, key):  # one dispatch per step: the key split runs inside the jitted call
-        key, action_key = jax.random.split(key)
-        return actor(obs, action_key), key
+    if isinstance(actor, Actor):
+        act = actor.step  # one dispatch per step: the key split runs inside the jitted call
+    else:
+        @jax.jit
+        def act(obs, key):
+            key, action_key = jax.random.split(key)
+            return actor(obs, action_key), key
 
     key = jax.random.fold_in(jax.random.PRNGKey(seed), 1)
     obs, info = gym_env.reset(seed=seed, options={"command": command})

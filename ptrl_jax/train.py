@@ -99,7 +99,7 @@ def make_train(
     obs_shapes = jax.eval_shape(env.reset, jax.random.PRNGKey(0)).obs
     obs_sizes = {k: int(v.shape[-1]) for k, v in obs_shapes.items()}
     action_size = env.action_size
-    reward_names = [f"reward/{k}" for k in env._reward_weights]  # noqa: SLF001 (env contract)
+    reward_names = [f"reward/{k}" for k in env.reward_names]
     reset_fn = jax.vmap(env.reset)
     step_fn = jax.vmap(env.step)
 

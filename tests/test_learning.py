@@ -149,3 +149,31 @@ class TestClosingNoise:
     def test_the_run_mask_is_not_changed(self, history):
         states, _ = history
         assert not any(np.any(np.asarray(m)) for m in jax.tree.leaves(states[-1].frozen))
+
+
+@pytest.mark.xdist_group("engine_mujoco_learning")
+class TestMujocoCEngine:
+    """engine=mujoco inside the trainer: the host callback is part of one compiled iteration."""
+
+    def test_no_recompiles_and_same_seed_same_metrics(self):
+        import envs
+
+        env = envs.make("go2", dataclasses.replace(envs.default_config("go2"), engine="mujoco"))
+        ppo = dataclasses.replace(PPO, num_envs=8, unroll_length=4, num_minibatches=2, num_iterations=1)
+        trainer = make_train(env, ppo, NET)
+        params = trainer.init_params(jax.random.PRNGKey(0))
+        init = jax.jit(trainer.init)
+        iteration = jax.jit(trainer.iteration)
+        runs = []
+        for _ in range(2):
+            state = init(jax.random.PRNGKey(1), ppo.hparams(), empty_mask(params), params)
+            metrics = []
+            for _ in range(3):
+                state, m = iteration(state)
+                metrics.append(jax.device_get(m))
+            runs.append(metrics)
+        assert iteration._cache_size() == 1
+        for a, b in zip(*runs):
+            for k in a:
+                assert np.array_equal(a[k], b[k]), k
+        assert runs[0][-1]["env_steps"] == 3 * 8 * 4 and np.isfinite(runs[0][-1]["loss/total"])

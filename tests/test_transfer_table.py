@@ -108,11 +108,13 @@ class TestBatchConfigs:
     @pytest.mark.parametrize("scale", ["smoke", "cpu", "paper"])
     def test_table4_resolves_at_every_scale(self, scale):
         configs, settings = batch_configs("table4", {"scale": scale})
-        assert list(configs) == ["go2_to_xbot", "xbot_to_all"] and settings["transfer_preset"] == "L2"
+        assert list(configs) == ["go2_to_xbot", "xbot_to_all", "go2_to_a1", "go2_to_anymal_c"]
+        assert settings["transfer_preset"] == "L2"
         for cfg in configs.values():
-            assert cfg.scale == scale and {"L2", "scratch"} <= set(cfg.variants)
-        robots = [r for cfg in configs.values() for r in cfg.targets]
-        assert len(robots) == 8 == len(set(robots))  # every robot of the paper is a target once
+            assert cfg.scale == scale and {"L2", "none@semantic", "L2@semantic", "scratch"} == set(cfg.variants)
+        paper = [r for name in ("go2_to_xbot", "xbot_to_all") for r in configs[name].targets]
+        assert len(paper) == 8 == len(set(paper))  # every robot of the paper is a target once
+        assert [configs[n].target.robot for n in ("go2_to_a1", "go2_to_anymal_c")] == ["a1", "anymal_c"]
 
     def test_the_command_line_can_name_the_experiments(self):
         configs, _ = batch_configs("table4", {"scale": "smoke", "batch": "[xbot_to_go2,mit_to_xbot]"})
