@@ -23,7 +23,7 @@ class PointMass:
     Episodes last 20 steps (truncation); leaving |x| > 3 terminates. Pure JAX, no MJX."""
 
     action_size = 2
-    _reward_weights = {"distance": 1.0}
+    reward_names = ("distance",)  # the env contract: metrics hold reward/<name>
     horizon = 20
 
     def _obs(self, pos, vel):
