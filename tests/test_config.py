@@ -83,7 +83,10 @@ class TestPresets:
         assert cfg.source.robot == alias.get(src, src)
         if tgt != "all":
             assert list(cfg.targets) == [alias.get(tgt, tgt)]
-        assert cfg.freeze_presets == ("none", "L1", "L2", "L1+L2", "scratch")
+        assert cfg.freeze_presets[:5] == ("none", "L1", "L2", "L1+L2", "scratch")
+        # go2_to_xbot's smoke sweep (the CI sweep) adds semantic transfers; the paper's presets stay
+        assert all(p.endswith("@semantic") for p in cfg.freeze_presets[5:])
+        assert cfg.transfer.mode == "paper"
 
     def test_xbot_to_all_fine_tunes_the_seven_other_robots(self):
         import envs
