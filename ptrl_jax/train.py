@@ -71,6 +71,8 @@ class Trainer(NamedTuple):
     init: Callable[..., TrainState]
     iteration: Callable[[TrainState], tuple[TrainState, dict]]
     train: Callable[..., tuple[TrainState, dict]]
+    update: Callable[..., tuple[tuple, dict]]
+    """One iteration's SGD on a given batch (the update half of ``iteration``; benchmarks time it)."""
     observation_sizes: dict
 
 
@@ -220,10 +222,25 @@ def make_train(
         frozen = {**state.frozen, "log_std": state.frozen["log_std"] | closing}
         return state._replace(params={**state.params, "log_std": log_std}), frozen
 
+    def update(params: Params, opt_state: Any, learning_rate: jax.Array, hp: PPOHparams, frozen: Mask,
+               batch: Transition, inputs: LossInputs, key: PRNGKey):
+        """The SGD of one iteration: ``ppo.num_epochs`` passes over ``batch`` (flattened to
+        ``[batch_size, ...]``), each shuffled into ``ppo.num_minibatches`` minibatches, one Adam
+        step per minibatch (frozen leaves masked). Returns ``((params, opt_state, lr), metrics)``
+        with metrics per epoch and minibatch."""
+        sgd_step = make_sgd_step(hp, frozen)
+
+        def epoch(carry, epoch_key):
+            perm = jax.random.permutation(epoch_key, ppo.batch_size)
+            shuffle = lambda x: x[perm].reshape((ppo.num_minibatches, ppo.minibatch_size) + x.shape[1:])  # noqa: E731
+            minibatches = jax.tree.map(shuffle, (batch, inputs))
+            return jax.lax.scan(sgd_step, carry, minibatches)
+
+        return jax.lax.scan(epoch, (params, opt_state, learning_rate), jax.random.split(key, ppo.num_epochs))
+
     def iteration(state: TrainState) -> tuple[TrainState, dict]:
         hp = state.hparams
         state, update_frozen = hold_closing_noise(state)
-        sgd_step = make_sgd_step(hp, update_frozen)
         env_state, episodes, new_stats, key, tr, extras = rollout(state)
 
         values = value_apply(state.params, tr.observation, network)
@@ -240,17 +257,9 @@ def make_train(
             action=batch.action, old_log_prob=batch.log_prob, old_value=flat(values),
             advantage=flat(advantages), target_return=flat(returns),
         )
-
-        def epoch(carry, epoch_key):
-            perm = jax.random.permutation(epoch_key, ppo.batch_size)
-            shuffle = lambda x: x[perm].reshape((ppo.num_minibatches, ppo.minibatch_size) + x.shape[1:])  # noqa: E731
-            minibatches = jax.tree.map(shuffle, (batch, inputs))
-            return jax.lax.scan(sgd_step, carry, minibatches)
-
         key, sgd_key = jax.random.split(key)
-        (params, opt_state, lr), sgd_metrics = jax.lax.scan(
-            epoch, (state.params, state.opt_state, state.learning_rate),
-            jax.random.split(sgd_key, ppo.num_epochs),
+        (params, opt_state, lr), sgd_metrics = update(
+            state.params, state.opt_state, state.learning_rate, hp, update_frozen, batch, inputs, sgd_key
         )
 
         env_steps = state.env_steps + ppo.batch_size
@@ -288,7 +297,7 @@ def make_train(
         state = init(key, hparams, frozen, params, run_id)
         return jax.lax.scan(lambda s, _: iteration(s), state, None, length=ppo.num_iterations)
 
-    return Trainer(init_params, init, iteration, train, obs_sizes)
+    return Trainer(init_params, init, iteration, train, update, obs_sizes)
 
 
 def _track_episodes(ep: EpisodeStats, state) -> EpisodeStats:
