@@ -87,28 +87,43 @@ class TestRegistryWalk:
         assert float(np.min(height)) > env.config.termination_height
 
 
-# Measured 2026-12-01 on this hold: A1 1.1e-2, ANYmal B 4.2e-3, ANYmal C 1.2e-2 (positions, m or
-# rad, over the 10 steps), against Go2's bound of 2e-3, which tests/test_gym_env.py measured
-# between MJX and MuJoCo C on Go2 only. Whether these robots' MJX and MuJoCo C differ by that much
-# anyway, or the callback adds to it, is not yet established (MJX against the MuJoCo C Gymnasium
-# view was never measured for them). Strict: a robot that comes within the bound must leave the set.
-ENGINE_GAP_UNEXPLAINED = {"a1", "anymal_b", "anymal_c"}
+# At the training solver settings (4 Newton iterations, 4 line-search steps) the solve at a foot's
+# touchdown is not converged on A1 and the ANYmals, and MJX's and MuJoCo C's line searches stop
+# at different points: on this hold the engines agree to 1e-6 until one step (A1: the 5th) where
+# positions part by 4e-3 to 1.2e-2. With 8 solver iterations, or 30 line-search steps, they agree
+# to 8e-6 over all 10 steps (measured 2026-12-02, docs/engines.md). For these robots the test
+# compares the engines at 8 solver iterations, where the comparison is of the engines and not of
+# where two unconverged solves stop; the gap at the training settings is checked to be there, so
+# a change that closes it shows.
+UNCONVERGED_AT_TOUCHDOWN = {"a1", "anymal_b", "anymal_c"}
+CONVERGED_SOLVER_ITERATIONS = 8
+
+
+def engine_gap(env, other_env, mjx_trace=None):
+    """Max |qpos| and |reward| difference between ``env`` (MJX) and ``other_env`` (MuJoCo C)
+    over the first 10 control steps of the zero-action hold from the same 4 resets."""
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    if mjx_trace is None:
+        _, _, (_, _, _, qpos, reward) = reset_and_hold(env, keys, 10)
+    else:
+        qpos, reward = mjx_trace
+    _, _, (_, _, finite, c_qpos, c_reward) = reset_and_hold(other_env, keys, 10)
+    assert np.all(np.asarray(finite))
+    dq = float(np.abs(np.asarray(c_qpos) - np.asarray(qpos[:10])).max())
+    dr = float(np.abs(np.asarray(c_reward) - np.asarray(reward[:10])).max())
+    return dq, dr
 
 
 class TestEngines:
     def test_mujoco_c_engine_agrees_with_mjx_over_10_control_steps(self, held_default_pose):
         robot, env, (_, _, (_, _, _, qpos, reward)) = held_default_pose
-        c_env = envs.make(robot, dataclasses.replace(env.config, engine="mujoco"))
-        _, _, (_, _, finite, c_qpos, c_reward) = reset_and_hold(c_env, jax.random.split(jax.random.PRNGKey(0), 4), 10)
-        assert np.all(np.asarray(finite))
         pos_tol, reward_tol = ENGINE_TOLERANCE[env.family_name]
-        dq = float(np.abs(np.asarray(c_qpos) - np.asarray(qpos[:10])).max())
-        dr = float(np.abs(np.asarray(c_reward) - np.asarray(reward[:10])).max())
-        agree = dq < pos_tol and dr < reward_tol
-        if robot in ENGINE_GAP_UNEXPLAINED:
-            assert not agree, f"{robot} now agrees within the bound: take it out of ENGINE_GAP_UNEXPLAINED"
-            pytest.xfail(f"{robot}: engines differ by {dq:.1e} over 10 steps (ENGINE_GAP_UNEXPLAINED)")
-        assert agree, (robot, dq, dr)
+        dq, dr = engine_gap(env, envs.make(robot, dataclasses.replace(env.config, engine="mujoco")), (qpos, reward))
+        if robot in UNCONVERGED_AT_TOUCHDOWN:
+            assert dq >= pos_tol, f"{robot} now agrees at the training settings: take it out of UNCONVERGED_AT_TOUCHDOWN"
+            cfg = dataclasses.replace(env.config, solver_iterations=CONVERGED_SOLVER_ITERATIONS)
+            dq, dr = engine_gap(envs.make(robot, cfg), envs.make(robot, dataclasses.replace(cfg, engine="mujoco")))
+        assert dq < pos_tol and dr < reward_tol, (robot, dq, dr)
 
     def test_an_unknown_engine_is_refused(self):
         with pytest.raises(ValueError, match="engine must be one of"):
