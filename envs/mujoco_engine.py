@@ -34,6 +34,21 @@ from mujoco import batch as mj_batch
 ENGINES = ("mjx", "mujoco")
 """Physics engines of the envs: MJX (JAX, GPU or CPU) and MuJoCo C (CPU threads)."""
 
+AUTO = "auto"
+"""An experiment's default engine: MuJoCo C where jax runs on the CPU, MJX on an accelerator
+(``resolve_engine``). Measured on 2 CPU cores, MuJoCo C trained Go2 1.36 times faster and
+compiled its trainer 2.3 times faster (BENCHMARKS.md, 2026-12-02)."""
+
+
+def resolve_engine(name: str) -> str:
+    """The engine ``name`` stands for on this machine: ``auto`` is ``mujoco`` when jax's default
+    backend is the CPU and ``mjx`` otherwise; ``mjx`` and ``mujoco`` are themselves."""
+    if name == AUTO:
+        return "mujoco" if jax.default_backend() == "cpu" else "mjx"
+    if name not in ENGINES:
+        raise ValueError(f"engine must be one of {[*ENGINES, AUTO]}, got {name!r}")
+    return name
+
 _OUT_FIELDS = ("qpos", "qvel", "qacc_warmstart", "site_xpos", "xpos")
 
 

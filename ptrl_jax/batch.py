@@ -108,7 +108,7 @@ def run_batch(exp: str, cli: Mapping[str, Any], show_progress: bool | None = Non
         else:
             table_rows += transfer_table.experiment_rows(
                 child, result["rows"], settings["transfer_preset"], cfg.report.threshold_fraction,
-                cfg.report.final_window, source=cfg.source.robot)
+                cfg.report.final_window, source=cfg.source.robot, metric=cfg.report.threshold_metric)
             write_table(batch_dir, settings, configs, table_rows)
     return {"run_dir": batch_dir, "table_path": batch_dir / f"{settings['table']}.md", "rows": table_rows,
             "results": results, "interrupted": any(r["interrupted"] for r in results.values())}
@@ -154,7 +154,7 @@ def write_table(batch_dir: Path, settings: Mapping[str, Any], configs: Mapping[s
                f"{cfg.source.ppo.num_iterations} it x {cfg.source.ppo.env_steps_per_iteration} steps")
             + f", targets {cfg.target.ppo.num_iterations} it x {cfg.target.ppo.env_steps_per_iteration} steps"
             f", {cfg.seeds} seed(s)" for c, cfg in configs.items()),
-        f"Threshold: {any_cfg.report.threshold_fraction:g} x the scratch run's final reward (mean of the "
+        f"Threshold: {any_cfg.report.threshold_fraction:g} x the scratch run's final {any_cfg.report.threshold_metric} (mean of the "
         f"last {any_cfg.report.final_window} iterations, over seeds); time to threshold = env steps and "
         f"target-stage wall time at the first iteration reaching it",
         "Saved = 1 - transfer / scratch per seed (paired seeds), mean ± std over seeds where both reached it",

@@ -186,7 +186,13 @@ class ReportConfig:
     """How report.md summarises the curves."""
 
     threshold_fraction: float = 0.9
-    """Time-to-threshold uses this fraction of the scratch baseline's final reward."""
+    """Time-to-threshold uses this fraction of the scratch baseline's final value of
+    ``threshold_metric``."""
+    threshold_metric: str = "episode_reward"
+    """The logged curve that time-to-threshold reads: ``episode_reward`` (the paper's measure), or
+    one reward term, ``episode_reward/<term>``. ``episode_reward/tracking_lin_vel`` is earned
+    only by following the velocity command, so a policy that stands cannot reach its threshold
+    (docs/table4.md: on A1, standing earns 90 % of a walking policy's episode reward)."""
     final_window: int = 10
     """'Final reward' is the mean over this many last iterations."""
     zero_shot_check: bool = True
@@ -197,6 +203,9 @@ class ReportConfig:
     """Length of each zero-shot check rollout, s (the walking check's own 20 s by default)."""
 
     def __post_init__(self):
+        if self.threshold_metric != "episode_reward" and not self.threshold_metric.startswith("episode_reward/"):
+            raise ValueError(f"report.threshold_metric must be 'episode_reward' or 'episode_reward/<reward term>', "
+                             f"got {self.threshold_metric!r}")
         if not 0.0 < self.threshold_fraction <= 1.5:
             raise ValueError(f"report.threshold_fraction must be in (0, 1.5], got {self.threshold_fraction}")
         if self.final_window < 1:
@@ -221,10 +230,17 @@ class TransferConfig:
     unmapped_blocks: tuple[str, ...] = ()
     """Target observation blocks (``foot_contact``, ``base_height``, ...) left unmapped by semantic
     transfers: their input weights start at zero."""
+    noise_std: float = 0.0
+    """The policy std semantic transfers start from: 0 carries the source's (per joint, scaled
+    like its action); a positive value starts every joint's std there instead. A source trained
+    with a closing phase ends at its ``final_noise_std`` (0.2), which may leave the target too
+    little exploration (docs/table4.md)."""
 
     def __post_init__(self):
         if self.mode not in TRANSFER_MODES:
             raise ValueError(f"transfer.mode must be one of {list(TRANSFER_MODES)}, got {self.mode!r}")
+        if self.noise_std < 0:
+            raise ValueError(f"transfer.noise_std must be >= 0 (0 carries the source's std), got {self.noise_std}")
 
 
 @dataclass(frozen=True)
@@ -255,9 +271,10 @@ class ExperimentConfig:
     units of each frozen (``freeze.ratio_preset``)."""
     transfer: TransferConfig = field(default_factory=TransferConfig)
     """How transferring variants initialise the target (paper or semantic)."""
-    engine: str = "mjx"
-    """Physics engine of every stage: ``mjx`` (in JAX; GPU or CPU) or ``mujoco`` (MuJoCo C's
-    batched stepper on the CPU threads, through a host callback; ``envs.mujoco_engine``)."""
+    engine: str = "auto"
+    """Physics engine of every stage: ``mjx`` (in JAX; GPU or CPU), ``mujoco`` (MuJoCo C's
+    batched stepper on the CPU threads, through a host callback; ``envs.mujoco_engine``), or
+    ``auto``: ``mujoco`` where jax runs on the CPU, ``mjx`` on a GPU (docs/engines.md)."""
     init_checkpoint: str = ""
     """A target checkpoint to start every transferring variant from (``python -m
     ptrl_jax.transfer`` writes one; any checkpoint of the target robot serves): no source is
@@ -295,10 +312,10 @@ class ExperimentConfig:
                              f"optionally with {MODE_SEPARATOR}semantic or {MODE_SEPARATOR}paper")
         for p in self.freeze_presets:
             variant(p)  # a bad mode suffix names itself
-        from envs.mujoco_engine import ENGINES
+        from envs.mujoco_engine import AUTO, ENGINES
 
-        if self.engine not in ENGINES:
-            raise ValueError(f"engine must be one of {list(ENGINES)}, got {self.engine!r}")
+        if self.engine not in (*ENGINES, AUTO):
+            raise ValueError(f"engine must be one of {[*ENGINES, AUTO]}, got {self.engine!r}")
         if self.init_checkpoint and self.source_checkpoint:
             raise ValueError("init_checkpoint and source_checkpoint exclude each other: the first starts "
                              "the target from a transferred checkpoint, the second transfers from a source")

@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 
 import envs
+from envs.mujoco_engine import resolve_engine
 from ptrl_jax import normalization, semantic
 from ptrl_jax.config import ExperimentConfig
 from ptrl_jax.freeze import empty_mask, preset_mask, transfer, variant
@@ -116,7 +117,8 @@ def make_program(
 ) -> Program:
     """``progress(stage_name)`` returns that stage's progress hook (or None)."""
     hook = progress or (lambda stage: None)
-    engine = lambda env_cfg: dataclasses.replace(env_cfg, engine=cfg.engine)  # noqa: E731
+    physics = resolve_engine(cfg.engine)
+    engine = lambda env_cfg: dataclasses.replace(env_cfg, engine=physics)  # noqa: E731
     source_env = envs.make(cfg.source.robot, engine(cfg.source.env))
     source = make_train(source_env, cfg.source.ppo, cfg.network.source, hook("source"))
     stages = cfg.targets
@@ -153,7 +155,7 @@ def make_program(
                 return target.init(train_k, hparams, mask, params, run_id)
             fresh_norm = {k: normalization.init(n) for k, n in target.observation_sizes.items()}
             sem_params, sem_norm = semantic.apply(transfer_maps[robot], source["params"], source["normalizer"],
-                                                  fresh, fresh_norm)
+                                                  fresh, fresh_norm, cfg.transfer.noise_std)
             is_sem = mode == 2
             params = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_params, params)
             norm = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_norm, fresh_norm)

@@ -9,6 +9,8 @@ last saved state (``resume_state.npz``) to the same result an uninterrupted run 
 
 from __future__ import annotations
 
+import difflib
+
 import os
 import signal
 import sys
@@ -31,6 +33,7 @@ import jax
 import numpy as np
 import yaml
 
+from envs.mujoco_engine import resolve_engine
 from ptrl_jax import artifacts, normalization, summary
 from ptrl_jax.config import ExperimentConfig
 from ptrl_jax.freeze import TRANSFER_MODES, variant
@@ -258,7 +261,7 @@ def save_outputs(
     sections, tables = [], {}
     for robot in cfg.targets:
         robot_rows = [r for r in rows if r["stage"] == "source" or r["robot"] == robot]
-        curves = summary.curves_by_preset(robot_rows)
+        curves = summary.curves_by_preset(robot_rows, cfg.report.threshold_metric)
         table, threshold = summary.preset_summary(curves, cfg.report.threshold_fraction, cfg.report.final_window)
         route = f"{cfg.source.robot} -> {robot}" if transfers else f"{robot} from scratch"
         title = f"{cfg.name}: {route} ({cfg.scale})"
@@ -269,7 +272,7 @@ def save_outputs(
         if multi:
             notes.append(f"All {len(cfg.targets)} target robots ran in the same program, one iteration "
                          f"each per step of the target loop; wall times are shared")
-        text = summary.format_report(title, table, threshold, common[:1] + notes + common[1:])
+        text = summary.format_report(title, table, threshold, common[:1] + notes + common[1:], cfg.report.threshold_metric)
         for mode in TRANSFER_MODES:
             ratio_rows = summary.ratio_table(table, mode)
             if ratio_rows:
@@ -391,7 +394,7 @@ def runtime_fingerprint(cfg: ExperimentConfig) -> dict[str, str]:
 
     return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "mujoco": mujoco.__version__,
             "xla_flags": os.environ.get("XLA_FLAGS", ""), "device": jax.devices()[0].device_kind,
-            "engine": cfg.engine}
+            "engine": resolve_engine(cfg.engine)}
 
 
 def check_runtime(saved: dict[str, str], cfg: ExperimentConfig, run_dir: Path) -> None:
@@ -469,6 +472,21 @@ def load_init_target(cfg: ExperimentConfig, program: Program) -> Any:
                        "init_checkpoint")
 
 
+def check_threshold_metric(cfg: ExperimentConfig, program) -> None:
+    """Refuse a ``report.threshold_metric`` reward term that a target robot does not log, naming
+    the nearest one, before anything runs or is written."""
+    metric = cfg.report.threshold_metric
+    if metric == "episode_reward":
+        return
+    term = metric.split("/", 1)[1]
+    for robot, env in program.target_envs.items():
+        if term not in env.reward_names:
+            near = difflib.get_close_matches(term, list(env.reward_names), n=1, cutoff=0.4)
+            hint = f"; did you mean 'episode_reward/{near[0]}'?" if near else ""
+            raise ConfigError(f"report.threshold_metric={metric!r}: {robot} has no reward term {term!r} "
+                              f"(its terms: {', '.join(env.reward_names)}){hint}")
+
+
 def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array, budget: np.int32):
     """(program, jitted init, compiled advance) for ``cfg``."""
     cache_key = (cfg.source, cfg.target, cfg.extra_targets, cfg.network, cfg.variants, cfg.seeds,
@@ -499,6 +517,7 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     budget = np.int32(cfg.checkpoint_every or total)
     t = time.monotonic()
     program, init, advance = _compiled_program(cfg, progress, key, budget)
+    check_threshold_metric(cfg, program)
     run_dir = resume_from or run_dir or new_run_dir(cfg)  # after compiling: a refused run writes nothing
     inputs = load_source_params(cfg, program), load_init_target(cfg, program)
     if resume_from is not None:

@@ -222,10 +222,11 @@ def _map_mlp(src: Params, fresh: Params, m: EntryMap, output=None) -> Params:
 
 
 def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, target_params: Params,
-          target_normalizer: dict) -> tuple[Params, dict]:
+          target_normalizer: dict, noise_std: float = 0.0) -> tuple[Params, dict]:
     """The semantic transfer: the target's initial (params, normaliser) from the source's.
     ``target_params``/``target_normalizer`` are the fresh ones (unmapped output columns start
-    from them). Traceable; the maps are static."""
+    from them). ``noise_std`` > 0 starts every joint's policy std there instead of carrying the
+    source's. Traceable; the maps are static."""
     has = tmap.joint_source >= 0
     idx = np.maximum(tmap.joint_source, 0)
     f = tmap.joint_factor.astype(np.float32)
@@ -243,6 +244,8 @@ def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, tar
         log_std = jnp.where(has, mapped_log_std, fill)
     else:
         log_std = target_params["log_std"]
+    if noise_std > 0:
+        log_std = jnp.full_like(target_params["log_std"], np.log(noise_std))
     params = {"actor": actor, "log_std": log_std.astype(target_params["log_std"].dtype), "critic": critic}
 
     normalizer = {}

@@ -14,8 +14,11 @@ def fmt_number(v: Any, fmt: str = "{:.3f}") -> str:
     return "n/a" if v is None or (isinstance(v, float) and not np.isfinite(v)) else fmt.format(v)
 
 
-def curves_by_preset(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, np.ndarray]]:
-    """{preset: {"env_steps": [T], "wall_time_s": [T], "reward": [seeds, T]}} for target rows."""
+def curves_by_preset(rows: Sequence[Mapping[str, Any]], metric: str = "episode_reward") -> dict[str, dict[str, np.ndarray]]:
+    """{preset: {"env_steps": [T], "wall_time_s": [T], "reward": [seeds, T], "metric": [seeds, T]}}
+    for target rows: "reward" is the episode reward, "metric" the column that time-to-threshold
+    reads (``metric``: the episode reward itself, or one of its logged terms such as
+    ``episode_reward/tracking_lin_vel``)."""
     grouped: dict[str, dict[int, list]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
         if r["stage"] != "target":
@@ -28,6 +31,7 @@ def curves_by_preset(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, n
             "env_steps": np.array([r["env_steps"] for r in runs[0]], float),
             "wall_time_s": np.array([r["wall_time_s"] for r in runs[0]], float),
             "reward": np.array([[r["episode_reward"] for r in run] for run in runs], float),
+            "metric": np.array([[r[metric] for r in run] for run in runs], float),
         }
     return out
 
@@ -37,18 +41,20 @@ def preset_summary(
 ) -> tuple[list[dict[str, Any]], float | None]:
     """Per preset: final reward, normalised area under the curve, time and steps to threshold.
 
-    The threshold is ``threshold_fraction`` x the scratch baseline's final reward (or of the
-    best preset's, without a scratch run). Seeds that never reach it count as not reached.
+    The threshold is ``threshold_fraction`` x the scratch baseline's final value of the curves'
+    "metric" (the episode reward unless another was chosen; without a scratch run, of the best
+    preset's). Seeds that never reach it count as not reached.
     """
     finals = {p: c["reward"][:, -final_window:].mean(axis=1) for p, c in curves.items()}
+    metric_finals = {p: c.get("metric", c["reward"])[:, -final_window:].mean(axis=1) for p, c in curves.items()}
     reference = "scratch" if "scratch" in curves else max(finals, key=lambda p: finals[p].mean())
-    threshold = float(threshold_fraction * finals[reference].mean()) if curves else None
+    threshold = float(threshold_fraction * metric_finals[reference].mean()) if curves else None
     rows = []
     for preset, c in curves.items():
         reward = c["reward"]
         steps, wall = c["env_steps"], c["wall_time_s"]
         auc = np.trapezoid(reward, steps, axis=1) / max(steps[-1] - steps[0], 1.0) if len(steps) > 1 else reward[:, 0]
-        reached = reward >= threshold
+        reached = c.get("metric", reward) >= threshold
         first = [int(np.argmax(r)) if r.any() else None for r in reached]
         t_steps = [steps[i] if i is not None else np.nan for i in first]
         t_wall = [wall[i] if i is not None else np.nan for i in first]
@@ -170,12 +176,13 @@ def plot_curves(
 
 
 def format_report(
-    title: str, summary: Sequence[Mapping[str, Any]], threshold: float | None, notes: Sequence[str]
+    title: str, summary: Sequence[Mapping[str, Any]], threshold: float | None, notes: Sequence[str],
+    metric: str = "episode_reward",
 ) -> str:
     lines = [f"# {title}", ""]
     lines += [f"- {n}" for n in notes]
     lines += [
-        f"- Threshold for 'time to threshold': {fmt_number(threshold)} (episode reward)",
+        f"- Threshold for 'time to threshold': {fmt_number(threshold)} ({metric})",
         "",
         "| preset | seeds | final reward (mean ± std) | AUC (mean ± std) | env steps to threshold | wall s to threshold | seeds reaching |",
         "|---|---|---|---|---|---|---|",

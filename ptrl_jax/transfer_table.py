@@ -3,8 +3,9 @@
 Host-side only, pure functions of ``metrics.csv`` rows, so notebooks can rebuild the table
 from finished runs. The rule, per target robot of an experiment:
 
-- threshold = ``threshold_fraction`` x the scratch baseline's final reward (mean over seeds of
-  the mean over the last ``final_window`` iterations), the same rule as report.md;
+- threshold = ``threshold_fraction`` x the scratch baseline's final value of the threshold
+  metric (the episode reward, or the reward term ``report.threshold_metric`` names; mean over
+  seeds of the mean over the last ``final_window`` iterations), the same rule as report.md;
 - for every seed, the env steps and the target-stage wall time at the first iteration whose mean
   episode reward reaches it, for the scratch run and for the transfer run (``transfer_preset``);
 - saved = 1 - transfer / scratch, per seed (seeds are paired: same initialisation of the
@@ -43,7 +44,7 @@ PAPER_HOURS: dict[str, tuple[float, float]] = {
 SEMANTIC_SUFFIX = "@semantic"
 
 FIELDS = (
-    "experiment", "source", "target", "transfer_preset", "seeds", "threshold",
+    "experiment", "source", "target", "transfer_preset", "seeds", "threshold", "threshold_metric",
     "scratch_final_reward", "transfer_final_reward",
     "scratch_steps_mean", "scratch_steps_std", "transfer_steps_mean", "transfer_steps_std",
     "scratch_wall_s_mean", "transfer_wall_s_mean",
@@ -69,7 +70,7 @@ def _stats(values: Sequence[float]) -> tuple[float, float]:
 
 def _time_to(curve: Mapping[str, np.ndarray], threshold: float) -> dict[str, np.ndarray]:
     """Per seed: env steps and wall time at the first iteration reaching ``threshold`` (NaN: never)."""
-    i = _first_reach(curve["reward"], threshold)
+    i = _first_reach(curve["metric"], threshold)
     return {"steps": np.where(i >= 0, curve["env_steps"][np.maximum(i, 0)], np.nan),
             "wall": np.where(i >= 0, curve["wall_time_s"][np.maximum(i, 0)], np.nan)}
 
@@ -91,20 +92,21 @@ def _compare(scratch: Mapping[str, np.ndarray], other: Mapping[str, np.ndarray])
 
 def robot_row(
     experiment: str, source: str, target: str, rows: Sequence[Mapping[str, Any]], transfer_preset: str,
-    threshold_fraction: float, final_window: int,
+    threshold_fraction: float, final_window: int, metric: str = "episode_reward",
 ) -> dict[str, Any]:
     """One Table IV row from the target rows of one robot (scratch and ``transfer_preset``
-    present; the semantic columns are filled when a ``<preset>@semantic`` variant ran)."""
-    curves = curves_by_preset(rows)
+    present; the semantic columns are filled when a ``<preset>@semantic`` variant ran).
+    ``metric``: the column whose curve reaches the threshold (``report.threshold_metric``)."""
+    curves = curves_by_preset(rows, metric)
     missing = [p for p in ("scratch", transfer_preset) if p not in curves]
     if missing:
         raise ValueError(f"{experiment} -> {target}: no metrics for preset(s) {missing} "
                          f"(Table IV needs 'scratch' and the transfer preset {transfer_preset!r})")
     final = {name: c["reward"][:, -final_window:].mean(axis=1) for name, c in curves.items()}
-    threshold = float(threshold_fraction * final["scratch"].mean())
+    threshold = float(threshold_fraction * curves["scratch"]["metric"][:, -final_window:].mean())
     out: dict[str, Any] = {
         "experiment": experiment, "source": source, "target": target, "transfer_preset": transfer_preset,
-        "seeds": int(curves["scratch"]["reward"].shape[0]), "threshold": threshold,
+        "seeds": int(curves["scratch"]["reward"].shape[0]), "threshold": threshold, "threshold_metric": metric,
         "scratch_final_reward": float(final["scratch"].mean()),
         "transfer_final_reward": float(final[transfer_preset].mean())}
     times = {name: _time_to(c, threshold) for name, c in curves.items()}
@@ -134,14 +136,14 @@ def robot_row(
 
 def experiment_rows(
     experiment: str, metrics: Sequence[Mapping[str, Any]], transfer_preset: str,
-    threshold_fraction: float, final_window: int, source: str | None = None,
+    threshold_fraction: float, final_window: int, source: str | None = None, metric: str = "episode_reward",
 ) -> list[dict[str, Any]]:
     """Table IV rows of one experiment's metrics.csv rows: one per target robot. ``source``
     names the source robot where the rows have no source stage (a ``source_checkpoint`` run)."""
     source = source or next((str(r["robot"]) for r in metrics if r["stage"] == "source"), "?")
     targets = list(dict.fromkeys(str(r["robot"]) for r in metrics if r["stage"] == "target"))
     return [robot_row(experiment, source, robot, [r for r in metrics if r["stage"] == "target" and r["robot"] == robot],
-                      transfer_preset, threshold_fraction, final_window) for robot in targets]
+                      transfer_preset, threshold_fraction, final_window, metric) for robot in targets]
 
 
 def average_row(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

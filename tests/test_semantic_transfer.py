@@ -99,6 +99,24 @@ class TestGo2ToA1IsTheIdentity:
         assert np.array_equal(value_apply(src, normalize_obs(src_norm, obs, True), net),
                               value_apply(params, normalize_obs(norm, obs, True), net))
 
+    def test_noise_std_replaces_the_carried_std_and_nothing_else(self, robots):
+        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
+        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
+        m = semantic.build_map(robots["go2"], robots["a1"])
+        carried, _ = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+        reset, _ = semantic.apply(m, src, src_norm, fresh, fresh_norm, noise_std=0.5)
+        np.testing.assert_allclose(np.exp(np.asarray(reset["log_std"])), 0.5, rtol=1e-6)
+        assert np.array_equal(carried["log_std"], src["log_std"])
+        same = jax.tree.map(np.array_equal, {k: carried[k] for k in ("actor", "critic")},
+                            {k: reset[k] for k in ("actor", "critic")})
+        assert all(jax.tree.leaves(same))
+
+    def test_a_negative_noise_std_is_refused(self):
+        from ptrl_jax.config import TransferConfig
+
+        with pytest.raises(ValueError, match="transfer.noise_std must be >= 0"):
+            TransferConfig(noise_std=-0.1)
+
 
 class TestGo2ToXBotL:
     @pytest.fixture(scope="class")

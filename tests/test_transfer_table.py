@@ -104,6 +104,62 @@ class TestRobotRow:
         assert avg["steps_saved_mean"] == pytest.approx(0.2) and avg["wall_saved_mean"] == pytest.approx(0.2)
 
 
+class TestThresholdMetric:
+    """A threshold on a reward term (``report.threshold_metric``): a run whose episode reward
+    reaches the reward threshold by standing, while its tracking term stays low, does not reach
+    the tracking threshold."""
+
+    # Episode reward: scratch walks to 4, "stand" stands at 4 from iteration 1. Tracking term:
+    # scratch to 2 (final over 2 iterations: 2), "stand" stays at 1. Threshold 0.8 x final.
+    REWARD = {("scratch", 0): [0, 1, 2, 4, 4], ("stand", 0): [0, 4, 4, 4, 4]}
+    TRACKING = {("scratch", 0): [0, 0.5, 1, 2, 2], ("stand", 0): [0, 1, 1, 1, 1]}
+
+    def rows(self):
+        out = rows_of(self.REWARD)
+        tracking = [t for _, ts in self.TRACKING.items() for t in ts]
+        out[0]["episode_reward/tracking_lin_vel"] = 0.0
+        for r, t in zip(out[1:], tracking):
+            r["episode_reward/tracking_lin_vel"] = t
+        return out
+
+    def test_table_row_reads_the_metric(self):
+        metric = "episode_reward/tracking_lin_vel"
+        (by_reward,) = transfer_table.experiment_rows("x", self.rows(), "stand", 0.8, 2)
+        (by_tracking,) = transfer_table.experiment_rows("x", self.rows(), "stand", 0.8, 2, metric=metric)
+        assert by_reward["threshold"] == pytest.approx(3.2) and by_reward["transfer_steps_mean"] == 200
+        assert by_tracking["threshold"] == pytest.approx(1.6) and by_tracking["threshold_metric"] == metric
+        assert by_tracking["scratch_steps_mean"] == 400 and math.isnan(by_tracking["transfer_steps_mean"])
+        assert by_tracking["transfer_final_reward"] == pytest.approx(4.0)  # finals stay episode rewards
+
+    def test_report_summary_reads_the_metric(self):
+        from ptrl_jax import summary
+
+        curves = summary.curves_by_preset(self.rows(), "episode_reward/tracking_lin_vel")
+        table, threshold = summary.preset_summary(curves, 0.8, 2)
+        by_preset = {r["preset"]: r for r in table}
+        assert threshold == pytest.approx(1.6)
+        assert by_preset["stand"]["seeds_reaching_threshold"] == 0
+        assert by_preset["stand"]["final_reward_mean"] == pytest.approx(4.0)
+        assert by_preset["scratch"]["steps_to_threshold_mean"] == 400
+
+    def test_a_metric_that_is_not_a_reward_curve_is_refused(self):
+        from ptrl_jax.config import ReportConfig
+
+        with pytest.raises(ValueError, match="threshold_metric must be"):
+            ReportConfig(threshold_metric="tracking_lin_vel")
+
+    def test_an_unknown_reward_term_is_refused_with_the_nearest(self):
+        from types import SimpleNamespace
+
+        from ptrl_jax.config import ReportConfig
+        from ptrl_jax.run import check_threshold_metric
+
+        cfg = SimpleNamespace(report=ReportConfig(threshold_metric="episode_reward/tracking_lin_vell"))
+        program = SimpleNamespace(target_envs={"a1": SimpleNamespace(reward_names=("tracking_lin_vel", "torques"))})
+        with pytest.raises(ConfigError, match="a1 has no reward term 'tracking_lin_vell'.*tracking_lin_vel'"):
+            check_threshold_metric(cfg, program)
+
+
 class TestBatchConfigs:
     @pytest.mark.parametrize("scale", ["smoke", "cpu", "paper"])
     def test_table4_resolves_at_every_scale(self, scale):
