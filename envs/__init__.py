@@ -17,6 +17,28 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 # PipelineEnv structure on MuJoCo MJX, which is maintained.
 warnings.filterwarnings("ignore", message="Brax System, piplines and environments", category=UserWarning)
 
+
+
+def _import_mjx_quietly() -> None:
+    """Import MJX with its optional Warp backend's import report swallowed. MJX tries Warp (a GPU
+    backend these envs do not use) on import and prints "Failed to import warp" twice to standard
+    output when it is absent, ahead of any command's output. Anything else it prints goes to
+    standard error."""
+    import contextlib
+    import io
+    import sys
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        import mujoco.mjx  # noqa: F401
+    other = [line for line in buf.getvalue().splitlines()
+             if not line.startswith(("Failed to import warp:", "Failed to import mujoco_warp:"))]
+    if other:
+        print("\n".join(other), file=sys.stderr)
+
+
+_import_mjx_quietly()
+
 from envs.registry import ROBOTS, default_config, family, make, robot_names  # noqa: E402
 from envs.gym_env import GYM_IDS, LocomotionGymEnv, register as _register_gymnasium  # noqa: E402
 

@@ -30,3 +30,15 @@ class TestDependencies:
     def test_nothing_imports_experiments(self):
         bad = [(str(p), m) for pkg in ("ptrl_jax", "envs") for p, m in imports(pkg) if m == "experiments"]
         assert not bad, bad
+
+
+class TestQuietImport:
+    def test_importing_the_envs_prints_nothing_on_standard_output(self):
+        """MJX's report of its absent Warp backend is swallowed (envs/__init__.py), so a command's
+        standard output holds only its result (``evaluate ... | jq``)."""
+        import subprocess
+        import sys
+
+        out = subprocess.run([sys.executable, "-c", "import envs"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        assert out.stdout == ""
