@@ -416,8 +416,12 @@ def parse_schedule(text: str):
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(f"{__doc__}\nkeys: {', '.join(KNOWN_ARGS)}")
+        return 0
     try:
-        args = parse_cli(sys.argv[1:] if argv is None else argv)
+        args = parse_cli(argv)
         unknown = sorted(set(args) - set(KNOWN_ARGS))
         if unknown:
             raise ConfigError(f"unknown argument(s) {unknown}; known: {', '.join(KNOWN_ARGS)}")

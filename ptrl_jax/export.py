@@ -178,10 +178,14 @@ FORMATS = {"onnx": (export_onnx, ".onnx"), "npz": (export_npz, ".policy.npz")}
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(__doc__)
+        return 0
     from ptrl_jax.evaluate import policy_from_checkpoint
 
     try:
-        args = parse_cli(sys.argv[1:] if argv is None else argv)
+        args = parse_cli(argv)
         if "ckpt" not in args:
             raise ConfigError("ckpt=PATH is required (a source.npz or target_*.npz of a run)")
         fmt = args.pop("format", "onnx")
