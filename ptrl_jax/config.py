@@ -288,6 +288,9 @@ class ExperimentConfig:
     """Report settings."""
     runs_dir: str = "runs"
     """Where run folders are created."""
+    tensorboard: bool = False
+    """Also write the metrics as TensorBoard event files, one folder per run under
+    ``tensorboard/`` of the run folder (``ptrl_jax/tensorboard.py``), when metrics.csv is written."""
     progress: bool = True
     """Show a progress bar per stage (host callback; no recompilation)."""
     checkpoint: bool = True

@@ -237,6 +237,11 @@ def save_outputs(
     rows = metric_rows(cfg, out, times, stage_start)
     multi = len(cfg.targets) > 1  # several target robots: file names carry the robot
     artifacts.write_metrics_csv(run_dir / "metrics.csv", rows)
+    if cfg.tensorboard:
+        from ptrl_jax.tensorboard import write_events
+
+        write_events(run_dir / "tensorboard", rows, start_time=time.time() - max(
+            (float(r.get("wall_time_s", 0.0)) for r in rows), default=0.0))
     if cfg.checkpoint:
         save_checkpoints(cfg, run_dir, out)
     source_curve = [(r["env_steps"], r["episode_reward"]) for r in rows if r["stage"] == "source"]

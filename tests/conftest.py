@@ -63,6 +63,6 @@ def smoke_run(tmp_path_factory):
     from ptrl_jax.overrides import load_experiment
 
     runs = tmp_path_factory.mktemp("runs")
-    cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"runs_dir={runs}"])
+    cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"runs_dir={runs}", "tensorboard=true"])
     result = run_cli.run(cfg)
     return cfg, result["run_dir"]

@@ -44,6 +44,18 @@ class TestSmokeRunOutputs:
         for r in rows:
             assert np.isfinite(float(r["wall_time_s"])) and np.isfinite(float(r["kl"]))
 
+    def test_tensorboard_events_hold_the_metrics(self, smoke_run):
+        from test_tensorboard import read_scalars
+
+        cfg, run_dir = smoke_run
+        rows = list(csv.DictReader(open(run_dir / "metrics.csv")))
+        folders = {p.name for p in (run_dir / "tensorboard").iterdir()}
+        assert len(folders) == 1 + len(VARIANTS) * cfg.seeds and "target_xbot_l_L2_at_semantic_seed1" in folders
+        got = read_scalars(run_dir / "tensorboard" / "target_xbot_l_L2_seed0")["episode_reward"]
+        want = [(int(r["env_steps"]), float(r["episode_reward"])) for r in rows
+                if r["stage"] == "target" and r["preset"] == "L2" and r["seed"] == "0"]
+        assert [(s, v) for s, v, _ in got] == [(s, pytest.approx(v)) for s, v in want]
+
     def test_freezing_holds_inside_the_program(self, smoke_run):
         _, run_dir = smoke_run
         src = artifacts.load_checkpoint(run_dir / "source.npz")["params"]["actor"]
