@@ -230,3 +230,50 @@ def to_dict(obj: Any) -> Any:
     if isinstance(obj, tuple):
         return [to_dict(v) for v in obj]
     return obj
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Each field's docstring of a dataclass (the string literal right after the field), read from
+    its source: {name: docstring}."""
+    import ast
+    import inspect
+    import textwrap
+
+    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    docs = {}
+    for node, after in zip(body, body[1:]):
+        if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and isinstance(after, ast.Expr)
+                and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str)):
+            docs[node.target.id] = " ".join(after.value.value.split())
+    return docs
+
+
+def config_keys(cls: type = None, prefix: str = "") -> list[tuple[str, str, str]]:
+    """Every dotted key of the experiment config: (key, default, docstring), for ``--help``.
+    Robot env configs (``source.env``, ``target.env``) depend on the robot and are listed as one
+    key each."""
+    from ptrl_jax.config import ExperimentConfig
+
+    cls = cls or ExperimentConfig
+    docs = field_docs(cls)
+    instance = cls()
+    out = []
+    for f in dataclasses.fields(cls):
+        value = getattr(instance, f.name)
+        if dataclasses.is_dataclass(value):
+            out += config_keys(type(value), f"{prefix}{f.name}.")
+        else:
+            out.append((f"{prefix}{f.name}", repr(value), docs.get(f.name, "")))
+    return out
+
+
+def format_keys(width: int = 100) -> str:
+    """The config keys as help text: key, default, then the docstring's first sentence."""
+    lines = []
+    for key, default, doc in config_keys():
+        first = doc.split(". ")[0].rstrip(".")
+        lines.append(f"  {key} = {default}")
+        if first:
+            lines.append(f"      {first[:width - 6]}")
+    return "\n".join(lines)

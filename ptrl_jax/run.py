@@ -595,7 +595,10 @@ def _report_result(result: dict) -> int:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ("-h", "--help", "help"):
-        print(USAGE)
+        from ptrl_jax.overrides import format_keys
+
+        print(f"{USAGE}\nkeys, with their defaults (a preset overrides them; source.env / target.env take the\n"
+              f"robot's env config keys, envs/quadruped.py and envs/biped.py):\n{format_keys()}")
         return 0
     try:
         args = parse_cli(argv)

@@ -24,6 +24,14 @@ class TestConsoleScript:
         assert cli.main(["transfer", "target=a1"]) == 2  # the transfer module's own refusal
         assert "source= is required" in capsys.readouterr().err
 
+    def test_run_help_lists_the_config_keys_with_defaults_and_docs(self, capsys):
+        from ptrl_jax import run as run_cli
+
+        assert run_cli.main(["--help"]) == 0
+        out = capsys.readouterr().out
+        assert "  report.threshold_metric = 'episode_reward'\n      The logged curve that time-to-threshold reads" in out
+        assert "  transfer.noise_std = 0.0" in out and "  target.ppo.learning_rate = 0.001" in out
+
     def test_the_installed_script_runs(self):
         script = Path(sys.executable).parent / "ptrl-jax"
         assert script.is_file(), f"{script}: reinstall the package (pip install -e .) to get the console script"
