@@ -18,7 +18,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 warnings.filterwarnings("ignore", message="Brax System, piplines and environments", category=UserWarning)
 
 
-
 def _import_mjx_quietly() -> None:
     """Import MJX with its optional Warp backend's import report swallowed. MJX tries Warp (a GPU
     backend these envs do not use) on import and prints "Failed to import warp" twice to standard

@@ -39,6 +39,9 @@ AUTO = "auto"
 (``resolve_engine``). Measured on 2 CPU cores, MuJoCo C trained Go2 1.36 times faster and
 compiled its trainer 2.3 times faster (BENCHMARKS.md, 2026-12-02)."""
 
+ENGINE_CHOICES = (*ENGINES, AUTO)
+"""What an experiment's ``engine`` may name."""
+
 
 def resolve_engine(name: str) -> str:
     """The engine ``name`` stands for on this machine: ``auto`` is ``mujoco`` when jax's default
@@ -46,7 +49,7 @@ def resolve_engine(name: str) -> str:
     if name == AUTO:
         return "mujoco" if jax.default_backend() == "cpu" else "mjx"
     if name not in ENGINES:
-        raise ValueError(f"engine must be one of {[*ENGINES, AUTO]}, got {name!r}")
+        raise ValueError(f"engine must be one of {list(ENGINE_CHOICES)}, got {name!r}")
     return name
 
 _OUT_FIELDS = ("qpos", "qvel", "qacc_warmstart", "site_xpos", "xpos")

@@ -315,10 +315,10 @@ class ExperimentConfig:
                              f"optionally with {MODE_SEPARATOR}semantic or {MODE_SEPARATOR}paper")
         for p in self.freeze_presets:
             variant(p)  # a bad mode suffix names itself
-        from envs.mujoco_engine import AUTO, ENGINES
+        from envs.mujoco_engine import ENGINE_CHOICES
 
-        if self.engine not in (*ENGINES, AUTO):
-            raise ValueError(f"engine must be one of {[*ENGINES, AUTO]}, got {self.engine!r}")
+        if self.engine not in ENGINE_CHOICES:
+            raise ValueError(f"engine must be one of {list(ENGINE_CHOICES)}, got {self.engine!r}")
         if self.init_checkpoint and self.source_checkpoint:
             raise ValueError("init_checkpoint and source_checkpoint exclude each other: the first starts "
                              "the target from a transferred checkpoint, the second transfers from a source")

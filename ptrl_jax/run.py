@@ -9,8 +9,8 @@ last saved state (``resume_state.npz``) to the same result an uninterrupted run 
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
-
 import os
 import signal
 import sys
@@ -477,19 +477,18 @@ def load_init_target(cfg: ExperimentConfig, program: Program) -> Any:
                        "init_checkpoint")
 
 
-def check_threshold_metric(cfg: ExperimentConfig, program) -> None:
-    """Refuse a ``report.threshold_metric`` reward term that a target robot does not log, naming
-    the nearest one, before anything runs or is written."""
-    metric = cfg.report.threshold_metric
+def check_threshold_metric(metric: str, reward_terms: dict[str, tuple[str, ...]]) -> None:
+    """Refuse a ``report.threshold_metric`` reward term that a target robot does not log
+    (``reward_terms``: robot -> its reward terms), naming the nearest one."""
     if metric == "episode_reward":
         return
     term = metric.split("/", 1)[1]
-    for robot, env in program.target_envs.items():
-        if term not in env.reward_names:
-            near = difflib.get_close_matches(term, list(env.reward_names), n=1, cutoff=0.4)
+    for robot, terms in reward_terms.items():
+        if term not in terms:
+            near = difflib.get_close_matches(term, list(terms), n=1, cutoff=0.4)
             hint = f"; did you mean 'episode_reward/{near[0]}'?" if near else ""
             raise ConfigError(f"report.threshold_metric={metric!r}: {robot} has no reward term {term!r} "
-                              f"(its terms: {', '.join(env.reward_names)}){hint}")
+                              f"(its terms: {', '.join(terms)}){hint}")
 
 
 def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array, budget: np.int32):
@@ -520,9 +519,11 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     key = jax.random.PRNGKey(cfg.seed)
     total = cfg.source_iterations + cfg.target.ppo.num_iterations
     budget = np.int32(cfg.checkpoint_every or total)
+    # Before compiling: the reward terms are the fields of each target's reward config.
+    check_threshold_metric(cfg.report.threshold_metric, {
+        robot: tuple(f.name for f in dataclasses.fields(stage.env.rewards)) for robot, stage in cfg.targets.items()})
     t = time.monotonic()
     program, init, advance = _compiled_program(cfg, progress, key, budget)
-    check_threshold_metric(cfg, program)
     run_dir = resume_from or run_dir or new_run_dir(cfg)  # after compiling: a refused run writes nothing
     inputs = load_source_params(cfg, program), load_init_target(cfg, program)
     if resume_from is not None:
@@ -620,10 +621,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(table.read_text())
             return 130 if result["interrupted"] else 0
         cfg = load_experiment(exp, args)
+        return _report_result(run(cfg))  # run() refuses what needs the robots (reward terms, checkpoints)
     except (ConfigError, CheckpointError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    return _report_result(run(cfg))
 
 
 if __name__ == "__main__":

@@ -238,14 +238,14 @@ def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, tar
 
     actor = _map_mlp(source_params["actor"], target_params["actor"], tmap.obs["state"], actor_output)
     critic = _map_mlp(source_params["critic"], target_params["critic"], tmap.obs["privileged_state"])
-    mapped_log_std = source_params["log_std"][idx] + np.log(np.abs(f))
-    if has.any():
+    if noise_std > 0:
+        log_std = jnp.full_like(target_params["log_std"], np.log(noise_std))
+    elif has.any():
+        mapped_log_std = source_params["log_std"][idx] + np.log(np.abs(f))
         fill = jnp.sum(jnp.where(has, mapped_log_std, 0.0)) / has.sum()
         log_std = jnp.where(has, mapped_log_std, fill)
     else:
         log_std = target_params["log_std"]
-    if noise_std > 0:
-        log_std = jnp.full_like(target_params["log_std"], np.log(noise_std))
     params = {"actor": actor, "log_std": log_std.astype(target_params["log_std"].dtype), "critic": critic}
 
     normalizer = {}

@@ -46,7 +46,7 @@ def preset_summary(
     preset's). Seeds that never reach it count as not reached.
     """
     finals = {p: c["reward"][:, -final_window:].mean(axis=1) for p, c in curves.items()}
-    metric_finals = {p: c.get("metric", c["reward"])[:, -final_window:].mean(axis=1) for p, c in curves.items()}
+    metric_finals = {p: c["metric"][:, -final_window:].mean(axis=1) for p, c in curves.items()}
     reference = "scratch" if "scratch" in curves else max(finals, key=lambda p: finals[p].mean())
     threshold = float(threshold_fraction * metric_finals[reference].mean()) if curves else None
     rows = []
@@ -54,7 +54,7 @@ def preset_summary(
         reward = c["reward"]
         steps, wall = c["env_steps"], c["wall_time_s"]
         auc = np.trapezoid(reward, steps, axis=1) / max(steps[-1] - steps[0], 1.0) if len(steps) > 1 else reward[:, 0]
-        reached = c.get("metric", reward) >= threshold
+        reached = c["metric"] >= threshold
         first = [int(np.argmax(r)) if r.any() else None for r in reached]
         t_steps = [steps[i] if i is not None else np.nan for i in first]
         t_wall = [wall[i] if i is not None else np.nan for i in first]
