@@ -319,6 +319,17 @@ class LeggedEnv(PipelineEnv):
         metrics = {f"reward/{k}": zero for k in self._reward_weights}
         return State(data, obs, zero, zero, metrics, info)
 
+    def reset_with_command(self, rng: jax.Array, command: jax.Array) -> State:
+        """``reset``, then the joystick set to ``command`` (vx, vy, yaw rate) in place of the
+        sampled one, with the first observation recomputed from it (a biped's frame stack is
+        still filled with that one frame at step 0). vmappable over commands; the command is
+        resampled only as the config's ``commands.resample_time_s`` says."""
+        state = self.reset(rng)
+        info = {**state.info, "command": jnp.asarray(command, jnp.float32).reshape(3)}
+        obs, info = self._observe(state.pipeline_state, info)
+        info["final_obs"] = obs
+        return state.replace(obs=obs, info=info)
+
     # ----- step ---------------------------------------------------------------------------------
     def joint_targets(self, action: jax.Array) -> jax.Array:
         a = jnp.clip(action, -self.config.clip_actions, self.config.clip_actions)

@@ -7,6 +7,7 @@
     python -m ptrl_jax.evaluate ckpt=... filmstrip=go2.png filmstrip_span=1.2   # Figs. 4, 8, 9
     python -m ptrl_jax.evaluate ckpt=... stochastic=true   # sampled actions, as in training
     python -m ptrl_jax.evaluate ckpt=... check=true        # the robot family's walking check
+    python -m ptrl_jax.evaluate ckpt=... grid=true pushes=true   # every command of the training range
 
 The policy's mean action is applied (no sampling; ``stochastic=true`` samples the actions from
 the policy's Gaussian instead, as in training), the command is held fixed, and the episode
@@ -31,6 +32,7 @@ import numpy as np
 
 import envs
 from envs.quadruped import QuadrupedEnv
+from ptrl_jax import command_grid
 from ptrl_jax.artifacts import CheckpointError, load_checkpoint
 from ptrl_jax.config import NetworkConfig
 from ptrl_jax.figures import FIG6_SCHEDULE, schedule_commands
@@ -99,6 +101,34 @@ def run_walking_check(policy: Mapping[str, Any], seed: int = 0, sim: str = "mjx"
                                  normalize_observations=policy["normalize_observations"])
         verdicts.append(check_verdict(check, result))
     return verdicts
+
+
+def run_grid(policy: Mapping[str, Any], grid: command_grid.CommandGrid, sim: str = "mjx",
+             seed: int = 0) -> dict[str, Any]:
+    """The policy's mean action over every command of ``grid`` (``command_grid``), on ``sim``,
+    unpushed and, with ``grid.pushes``, pushed: the cells, summaries, the verdict against issue
+    20's goals, and the family's walking checks read from their cells (each check's command is a
+    cell of the default grid; with ``grid.seconds`` other than the check's 20 s it is the same
+    measure over another length)."""
+    if sim not in SIMS:
+        raise ValueError(f"sim={sim!r}: choose one of {SIMS}")
+    eval_cfg = fixed_command_config(policy["env"], (0.0, 0.0, 0.0), grid.seconds)
+    actor = _actor_fn(policy["network"], policy["normalize_observations"], False)
+    args = (policy["robot"], eval_cfg, actor, policy["params"], policy["normalizer"], grid, sim)
+    summary = command_grid.summarize_grid(grid.commands(), command_grid.rollout_grid(*args, seed=seed), grid.settle_s)
+    pushed = None
+    if grid.pushes:
+        pushed = command_grid.summarize_grid(grid.commands(), command_grid.rollout_grid(*args, pushes=True, seed=seed),
+                                             grid.settle_s)
+    checks = []
+    for check in walking_checks(policy["robot"]):
+        cell = command_grid.cell_for(summary, check.command)
+        if cell is not None:
+            checks.append(check_verdict(check, {"fell": cell["fell"], "time_survived_s": cell["time_up_s"],
+                                                "mean_velocity": cell["mean_velocity"],
+                                                "forward_speed_error": cell["error"][0]}))
+    return {"robot": policy["robot"], "sim": sim, "grid": grid, "summary": summary, "pushed": pushed,
+            "verdict": command_grid.verdict(grid, summary, pushed), "walking_check": checks}
 
 
 def format_verdicts(robot: str, verdicts: list[dict[str, Any]]) -> str:
@@ -395,7 +425,11 @@ def type_stats(d: Mapping[str, Any]):
 
 
 KNOWN_ARGS = ("ckpt", "vx", "vy", "yaw", "seconds", "sim", "seed", "mcap", "plot", "filmstrip", "filmstrip_span",
-              "schedule", "stochastic", "check")
+              "schedule", "stochastic", "check", "grid", "grid_vx", "grid_vy", "grid_yaw", "settle", "pushes",
+              "push_seeds", "push_interval", "push_vel", "out", "overwrite")
+GRID_ARGS = ("grid_vx", "grid_vy", "grid_yaw", "settle", "pushes", "push_seeds", "push_interval", "push_vel", "out",
+             "overwrite")
+"""Arguments of ``grid=true`` only."""
 ROLLOUT_ARGS = ("vx", "vy", "yaw", "seconds", "mcap", "plot", "filmstrip", "filmstrip_span", "schedule", "stochastic")
 """Arguments of a single rollout, which ``check=true`` replaces by the family's fixed checks."""
 
@@ -413,6 +447,56 @@ def parse_schedule(text: str):
         raise ConfigError(f"schedule={text!r}: give fig6 or a list of [vx,vy,yaw_rate] rows, "
                           f"e.g. schedule=[[0.3,0,0],[0.6,0,0.3]]") from None
     return tuple(tuple(float(x) for x in row) for row in rows)
+
+
+def parse_values(key: str, text: str) -> tuple[float, ...]:
+    """``grid_vx=[0,0.5,1]`` (or one number) as a tuple of floats."""
+    import yaml
+
+    try:
+        values = yaml.safe_load(text)
+        values = [values] if isinstance(values, (int, float)) else values
+        out = tuple(float(v) for v in values)
+    except Exception:
+        raise ConfigError(f"{key}={text!r}: give a list of numbers, e.g. {key}=[-0.5,0,0.5]") from None
+    if not out:
+        raise ConfigError(f"{key}={text!r}: give at least one value")
+    return out
+
+
+def grid_from_args(args: Mapping[str, str], policy: Mapping[str, Any], seconds: float) -> command_grid.CommandGrid:
+    """The default grid of the policy's robot (``command_grid.default_grid``) with the CLI's
+    ``grid_*``, ``settle``, ``pushes``, ``push_seeds``, ``push_interval`` (s) and ``push_vel``
+    (m/s) in place."""
+    fields: dict[str, Any] = {"seconds": seconds,
+                              "pushes": coerce(args.get("pushes", "false"), bool, "pushes")}
+    if "settle" in args:
+        fields["settle_s"] = float(args["settle"])
+    if "push_seeds" in args:
+        fields["push_seeds"] = coerce(args["push_seeds"], int, "push_seeds")
+    if "push_interval" in args:
+        fields["push_interval_s"] = coerce(args["push_interval"], float, "push_interval")
+    if "push_vel" in args:
+        fields["max_push_vel"] = coerce(args["push_vel"], float, "push_vel")
+    for axis in command_grid.AXES:
+        if f"grid_{axis}" in args:
+            fields[axis] = parse_values(f"grid_{axis}", args[f"grid_{axis}"])
+    try:
+        return command_grid.default_grid(policy["env"], [c.command for c in walking_checks(policy["robot"])], **fields)
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+
+
+def grid_out_dir(args: Mapping[str, str], sim: str) -> Path:
+    """``out=`` or ``<checkpoint stem>_grid_<sim>/`` beside the checkpoint; a folder that
+    already holds a grid is refused unless ``overwrite=true`` (nothing written is lost)."""
+    ckpt = Path(args["ckpt"])
+    out = Path(args["out"]) if "out" in args else ckpt.with_name(f"{ckpt.stem}_grid_{sim}")
+    if (out / "grid.json").exists() and not coerce(args.get("overwrite", "false"), bool, "overwrite"):
+        raise ConfigError(f"out={out}: it already holds a grid (grid.json); give another out= or overwrite=true")
+    if not out.parent.exists():
+        raise ConfigError(f"out={out}: folder {out.parent} does not exist")
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -438,6 +522,13 @@ def main(argv: list[str] | None = None) -> int:
         schedule = parse_schedule(args["schedule"]) if "schedule" in args else None
         stochastic = coerce(args.get("stochastic", "false"), bool, "stochastic")
         check = coerce(args.get("check", "false"), bool, "check")
+        grid = coerce(args.get("grid", "false"), bool, "grid")
+        if not grid and set(args) & set(GRID_ARGS):
+            raise ConfigError(f"{', '.join(sorted(set(args) & set(GRID_ARGS)))}: only with grid=true")
+        single = set(ROLLOUT_ARGS) - {"seconds"}
+        if grid and (check or set(args) & single):
+            raise ConfigError(f"grid=true rolls out the whole grid (its cells hold the walking check); drop "
+                              f"{', '.join(sorted((set(args) & single) | ({'check'} if check else set())))}")
         if check and set(args) & set(ROLLOUT_ARGS):
             raise ConfigError(f"check=true runs the robot family's fixed rollouts; drop "
                               f"{', '.join(sorted(set(args) & set(ROLLOUT_ARGS)))}")
@@ -450,9 +541,21 @@ def main(argv: list[str] | None = None) -> int:
             if key in args and not Path(args[key]).parent.exists():
                 raise ConfigError(f"{key}={args[key]}: folder {Path(args[key]).parent} does not exist")
         policy = policy_from_checkpoint(args["ckpt"])
+        if grid:
+            spec = grid_from_args(args, policy, seconds)
+            out_dir = grid_out_dir(args, sim)
     except (ConfigError, CheckpointError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    if grid:  # exit status 0 when the grid meets every goal, 1 when not
+        result = run_grid(policy, spec, sim=sim, seed=seed)
+        paths = command_grid.write_outputs(out_dir, result["robot"], sim, spec, result["summary"], result["pushed"],
+                                           result["verdict"], result["walking_check"])
+        print(paths[0].read_text())
+        if result["walking_check"]:
+            print(format_verdicts(policy["robot"], result["walking_check"]))
+        print("wrote " + ", ".join(str(p) for p in paths))
+        return 0 if result["verdict"]["passed"] else 1
     if check:  # exit status 0 when every check passes, 1 when one fails
         verdicts = run_walking_check(policy, seed=seed, sim=sim)
         print(json.dumps(verdicts, indent=2))

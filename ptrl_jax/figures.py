@@ -118,3 +118,48 @@ def save_filmstrip(path: Path, rec: Mapping[str, Any], title: str, frames: int =
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+
+
+def plot_command_grid(path: Path, grid: Any, summary: Mapping[str, Any], pushed: Mapping[str, Any] | None,
+                      title: str) -> None:
+    """The command grid's heat map (``command_grid``): a column of panels per sideways command,
+    a row per error axis (and one for the share of pushed rollouts that fell); each panel puts
+    forward speed across and yaw rate up, colours the cell's error from 0 (green) to twice the
+    goal (red) and marks a fall with a red cross."""
+    from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
+
+    vx, vy, yaw = (np.asarray(v, float) for v in (grid.vx, grid.vy, grid.yaw))
+    shape = (len(vx), len(vy), len(yaw))
+    cells = summary["cells"]
+    error = np.array([c["error"] for c in cells]).reshape(*shape, 3)
+    fell = np.array([c["fell"] for c in cells]).reshape(shape)
+    rows = [("|vx error| (m/s)", error[..., 0], grid.max_vx_error), ("|vy error| (m/s)", error[..., 1], grid.max_vy_error),
+            ("|yaw error| (rad/s)", error[..., 2], grid.max_yaw_error)]
+    if pushed is not None:
+        rows.append(("falls under pushes", np.array([c["fall_rate"] for c in pushed["cells"]]).reshape(shape),
+                     grid.max_push_fall_rate))
+    fig = Figure(figsize=(1.2 + 0.55 * len(vx) * len(vy) + 1.0 * len(vy), 1.0 + 0.45 * len(yaw) * len(rows) + 0.6 * len(rows)))
+    axes = np.asarray(fig.subplots(len(rows), len(vy), squeeze=False))
+    for r, (label, values, goal) in enumerate(rows):
+        for j in range(len(vy)):
+            ax = axes[r, j]
+            img = values[:, j, :].T  # yaw up, vx across
+            im = ax.imshow(img, origin="lower", cmap="RdYlGn_r", vmin=0.0, vmax=max(2 * goal, 1e-9), aspect="auto")
+            for a in range(len(vx)):
+                for b in range(len(yaw)):
+                    text = "nan" if not np.isfinite(img[b, a]) else (f"{img[b, a]:.0%}" if pushed is not None and r == 3
+                                                                       else f"{img[b, a]:.2f}")
+                    ax.text(a, b, text, ha="center", va="center", fontsize=6)
+                    if fell[a, j, b] and r < 3:
+                        ax.plot(a, b, "x", color="darkred", ms=10, mew=1.5)
+            ax.set_xticks(range(len(vx)), [f"{v:g}" for v in vx], fontsize=7)
+            ax.set_yticks(range(len(yaw)), [f"{v:g}" for v in yaw], fontsize=7)
+            if r == len(rows) - 1:
+                ax.set_xlabel("vx command (m/s)", fontsize=8)
+            if j == 0:
+                ax.set_ylabel(f"{label}\nyaw command (rad/s)", fontsize=8)
+            if r == 0:
+                ax.set_title(f"vy command {vy[j]:g} m/s", fontsize=8)
+        fig.colorbar(im, ax=list(axes[r]), shrink=0.8, label=f"goal {goal:g}")
+    fig.suptitle(f"{title}: tracking error per command (x: fell)", fontsize=10)
+    fig.savefig(path, dpi=110)

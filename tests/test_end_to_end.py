@@ -1,6 +1,7 @@
 """``scale=smoke`` end to end: one compiled program, every output written and consistent."""
 
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -117,3 +118,26 @@ class TestSmokeRunOutputs:
                 finals.append(np.mean(curve[-cfg.report.final_window:]))
             line = next(l for l in report.splitlines() if l.startswith(f"| {preset} |"))
             assert f"{np.mean(finals):.3f}" in line, (preset, line)
+
+
+class TestCommandGridOfTheSmokeSource:
+    def test_grid_with_pushes_writes_its_table_and_heat_map(self, smoke_run, tmp_path, capsys):
+        """The CLI's grid (MuJoCo C, 3 commands, pushes every 0.1 s, 2 push seeds) on the smoke
+        run's Go2 source: every cell and pushed rollout is accounted for in the files."""
+        from ptrl_jax import evaluate
+
+        _, run_dir = smoke_run
+        out = tmp_path / "grid"
+        status = evaluate.main([f"ckpt={run_dir}/source.npz", "grid=true", "sim=mujoco", "seconds=0.4",
+                                "grid_vx=[0,0.5]", "grid_vy=[0]", "grid_yaw=[0,0.5]", "pushes=true",
+                                "push_seeds=2", "push_interval=0.1", f"out={out}"])
+        assert status in (0, 1)
+        result = json.loads((out / "grid.json").read_text())
+        assert [c["command"] for c in result["summary"]["cells"]] == [[0, 0, 0], [0, 0, 0.5], [0.5, 0, 0], [0.5, 0, 0.5]]
+        assert result["pushed"]["rollouts"] == 8 and len(result["pushed"]["cells"]) == 4
+        assert [v["check"] for v in result["walking_check"]] == ["walk"]  # Go2's check is the (0.5, 0, 0) cell
+        assert status == (0 if result["verdict"]["passed"] else 1)
+        assert (out / "grid.png").stat().st_size > 10_000
+        rows = (out / "grid.csv").read_text().splitlines()
+        assert len(rows) == 5 and rows[0].endswith("push_fall_rate")
+        assert "Walking check 'walk'" in (out / "grid.md").read_text() and "wrote" in capsys.readouterr().out
