@@ -275,6 +275,10 @@ class ExperimentConfig:
     """Physics engine of every stage: ``mjx`` (in JAX; GPU or CPU), ``mujoco`` (MuJoCo C's
     batched stepper on the CPU threads, through a host callback; ``envs.mujoco_engine``), or
     ``auto``: ``mujoco`` where jax runs on the CPU, ``mjx`` on a GPU (docs/engines.md)."""
+    devices: str = "1"
+    """Local devices the program runs on: a count, or ``all``. With more than one, every stage's
+    env batch is split across them and XLA partitions the one program (``ptrl_jax/sharding.py``);
+    each stage's ``num_envs`` must divide by the count."""
     init_checkpoint: str = ""
     """A target checkpoint to start every transferring variant from (``python -m
     ptrl_jax.transfer`` writes one; any checkpoint of the target robot serves): no source is
@@ -319,6 +323,8 @@ class ExperimentConfig:
 
         if self.engine not in ENGINE_CHOICES:
             raise ValueError(f"engine must be one of {list(ENGINE_CHOICES)}, got {self.engine!r}")
+        if self.devices != "all" and not (str(self.devices).isdigit() and int(self.devices) >= 1):
+            raise ValueError(f"devices must be all or a positive number of devices, got {self.devices!r}")
         if self.init_checkpoint and self.source_checkpoint:
             raise ValueError("init_checkpoint and source_checkpoint exclude each other: the first starts "
                              "the target from a transferred checkpoint, the second transfers from a source")

@@ -34,7 +34,7 @@ import numpy as np
 import yaml
 
 from envs.mujoco_engine import resolve_engine
-from ptrl_jax import artifacts, normalization, summary
+from ptrl_jax import artifacts, normalization, sharding, summary
 from ptrl_jax.config import ExperimentConfig
 from ptrl_jax.freeze import TRANSFER_MODES, variant
 from ptrl_jax.artifacts import CheckpointError
@@ -399,7 +399,7 @@ def runtime_fingerprint(cfg: ExperimentConfig) -> dict[str, str]:
 
     return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "mujoco": mujoco.__version__,
             "xla_flags": os.environ.get("XLA_FLAGS", ""), "device": jax.devices()[0].device_kind,
-            "engine": resolve_engine(cfg.engine)}
+            "engine": resolve_engine(cfg.engine), "devices": str(sharding.resolve_devices(cfg.devices))}
 
 
 def check_runtime(saved: dict[str, str], cfg: ExperimentConfig, run_dir: Path) -> None:
@@ -491,19 +491,38 @@ def check_threshold_metric(metric: str, reward_terms: dict[str, tuple[str, ...]]
                               f"(its terms: {', '.join(terms)}){hint}")
 
 
-def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array, budget: np.int32):
-    """(program, jitted init, compiled advance) for ``cfg``."""
+def env_counts(cfg: ExperimentConfig) -> dict[str, int]:
+    """The env batch of every stage the program steps: the source (when it trains) and each target."""
+    counts = {"source": cfg.source.ppo.num_envs} if cfg.trains_source else {}
+    counts.update({robot: stage.ppo.num_envs for robot, stage in cfg.targets.items()})
+    return counts
+
+
+def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array, budget: np.int32, devices: int = 1):
+    """(program, jitted init, compiled advance, state shardings or None) for ``cfg`` on
+    ``devices`` local devices (``ptrl_jax/sharding.py``)."""
     cache_key = (cfg.source, cfg.target, cfg.extra_targets, cfg.network, cfg.variants, cfg.seeds,
-                 bool(cfg.source_checkpoint), bool(cfg.init_checkpoint), cfg.trains_source, cfg.transfer, cfg.engine)
+                 bool(cfg.source_checkpoint), bool(cfg.init_checkpoint), cfg.trains_source, cfg.transfer, cfg.engine,
+                 devices)
     if not progress.show and cache_key in _PROGRAMS:
         return _PROGRAMS[cache_key]
     program = make_program(cfg, progress.hook)
-    init = jax.jit(program.init)
     inputs = load_source_params(cfg, program), load_init_target(cfg, program)
-    advance = jax.jit(program.advance).lower(jax.eval_shape(init, key, *inputs), budget).compile()
+    shapes = jax.eval_shape(program.init, key, *inputs)
+    shardings = None
+    if devices > 1:
+        mesh = sharding.make_mesh(devices)
+        shardings = sharding.state_shardings(mesh, shapes, cfg.source.ppo.num_envs,
+                                             {robot: stage.ppo.num_envs for robot, stage in cfg.targets.items()})
+        init = jax.jit(program.init, out_shardings=shardings)
+        replicated = sharding.NamedSharding(mesh, sharding.PartitionSpec())
+        advance = jax.jit(program.advance, in_shardings=(shardings, replicated), out_shardings=shardings)
+    else:
+        init, advance = jax.jit(program.init), jax.jit(program.advance)
+    advance = advance.lower(shapes, budget).compile()
     if not progress.show:
-        _PROGRAMS[cache_key] = (program, init, advance)
-    return program, init, advance
+        _PROGRAMS[cache_key] = (program, init, advance, shardings)
+    return program, init, advance, shardings
 
 
 def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool | None = None,
@@ -522,12 +541,16 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     # Before compiling: the reward terms are the fields of each target's reward config.
     check_threshold_metric(cfg.report.threshold_metric, {
         robot: tuple(f.name for f in dataclasses.fields(stage.env.rewards)) for robot, stage in cfg.targets.items()})
+    devices = sharding.resolve_devices(cfg.devices)
+    sharding.check_divisible(env_counts(cfg), devices)
     t = time.monotonic()
-    program, init, advance = _compiled_program(cfg, progress, key, budget)
+    program, init, advance, shardings = _compiled_program(cfg, progress, key, budget, devices)
     run_dir = resume_from or run_dir or new_run_dir(cfg)  # after compiling: a refused run writes nothing
     inputs = load_source_params(cfg, program), load_init_target(cfg, program)
     if resume_from is not None:
         state, meta = artifacts.load_state(run_dir / RESUME_STATE, jax.eval_shape(init, key, *inputs))
+        if shardings is not None:
+            state = jax.device_put(state, shardings)
         progress.restore(meta)
     else:
         state = init(key, *inputs)
@@ -553,7 +576,7 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
                 "state": state}
     out = program.output(state)
     notes = [f"Compile {compile_s:.1f} s, run {run_s:.1f} s on {jax.devices()[0].platform.upper()} "
-             f"({jax.device_count()} device)" + (" (resumed)" if resume_from else "")]
+             f"({devices} of {jax.device_count()} device(s))" + (" (resumed)" if resume_from else "")]
     if progress.spread_over > 1:
         notes.append(interpolated_times_note(progress.spread_over))
     initial = None
