@@ -39,7 +39,14 @@ from envs import randomization, semantics
 from envs.mujoco_engine import ENGINES, MujocoStepper
 from envs.randomization import RandomizationConfig
 
-ASSETS_DIR = Path(__file__).resolve().parents[1] / "assets"
+def _assets_dir() -> Path:
+    """The robots' MJCF: ``envs/assets/`` in an installed wheel (pyproject.toml ships assets/
+    there), else the checkout's ``assets/``."""
+    packaged = Path(__file__).resolve().parent / "assets"
+    return packaged if packaged.is_dir() else Path(__file__).resolve().parents[1] / "assets"
+
+
+ASSETS_DIR = _assets_dir()
 
 
 @dataclass(frozen=True)

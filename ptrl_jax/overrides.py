@@ -21,7 +21,14 @@ import yaml
 import envs
 from ptrl_jax.config import SCALES, ExperimentConfig, StageConfig
 
-EXPERIMENTS_DIR = Path(__file__).resolve().parents[1] / "experiments"
+def _experiments_dir() -> Path:
+    """The experiment presets: ``ptrl_jax/presets/`` in an installed wheel (pyproject.toml ships
+    experiments/*.yaml there), else the checkout's ``experiments/``."""
+    packaged = Path(__file__).resolve().parent / "presets"
+    return packaged if packaged.is_dir() else Path(__file__).resolve().parents[1] / "experiments"
+
+
+EXPERIMENTS_DIR = _experiments_dir()
 
 
 class ConfigError(ValueError):

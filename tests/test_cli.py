@@ -1,5 +1,6 @@
 """The ``ptrl-jax`` console script and the commands' ``--help``."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -37,3 +38,33 @@ class TestConsoleScript:
         assert script.is_file(), f"{script}: reinstall the package (pip install -e .) to get the console script"
         out = subprocess.run([str(script), "--help"], capture_output=True, text=True, timeout=120)
         assert out.returncode == 0 and out.stdout.startswith("usage: ptrl-jax COMMAND"), out.stderr
+
+
+class TestWheel:
+    def test_the_wheel_carries_assets_and_presets_and_works_outside_the_checkout(self, tmp_path):
+        """``pip wheel .`` holds the robots' MJCF and the presets (not the checkout's scripts), and
+        the package unpacked from it, imported from another directory, finds both there."""
+        import zipfile
+
+        root = Path(__file__).resolve().parents[1]
+        out = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path / "dist"),
+                              str(root)], capture_output=True, text=True, timeout=600, cwd=tmp_path)
+        assert out.returncode == 0, out.stderr[-3000:]
+        (wheel,) = (tmp_path / "dist").glob("ptrl_jax-*.whl")
+        names = zipfile.ZipFile(wheel).namelist()
+        assert {"envs/assets/go2.xml", "envs/assets/xbot_l.xml", "ptrl_jax/presets/go2_to_xbot.yaml",
+                "ptrl_jax/presets/_transfer.yaml", "ptrl_jax/presets/table4.yaml"} <= set(names)
+        assert not [n for n in names if n.startswith(("ptrl_jax/presets/", "envs/assets/")) and n.endswith(".py")]
+        site = tmp_path / "site"
+        zipfile.ZipFile(wheel).extractall(site)
+        probe = ("import envs, ptrl_jax.overrides as o; "
+                 "cfg = o.load_experiment('go2_to_xbot', ['scale=smoke']); env = envs.make('xbot_l'); "
+                 "print(o.EXPERIMENTS_DIR, envs.base.ASSETS_DIR, cfg.target.robot, env.action_size)")
+        elsewhere = tmp_path / "elsewhere"
+        elsewhere.mkdir()
+        got = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300, cwd=elsewhere,
+                             env={**os.environ, "PYTHONPATH": str(site)})
+        assert got.returncode == 0, got.stderr[-3000:]
+        presets, assets, robot, actions = got.stdout.split()
+        assert presets == str(site / "ptrl_jax" / "presets") and assets == str(site / "envs" / "assets")
+        assert robot == "xbot_l" and actions == "12"
