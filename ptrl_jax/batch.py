@@ -85,15 +85,18 @@ def batch_configs(exp: str, cli: Mapping[str, Any]) -> tuple[dict[str, Experimen
 
 
 def run_batch(exp: str, cli: Mapping[str, Any], show_progress: bool | None = None,
-              checker: walking_table.Checker | None = None) -> dict[str, Any]:
+              checker: walking_table.Checker | None = None,
+              grid_checker: walking_table.GridChecker | None = None) -> dict[str, Any]:
     """Run every experiment of the batch in turn and build its table. Returns the batch folder,
-    the table (``table_path``), its rows and each experiment's run result. ``checker`` replaces
-    the MJX walking check of a ``walking_checks`` table (tests)."""
+    the table (``table_path``), its rows and each experiment's run result. A ``walking_checks``
+    batch also evaluates every scratch checkpoint on its command grid (``command_grids.md``).
+    ``checker`` and ``grid_checker`` replace the MJX walking check and the MuJoCo C grid (tests)."""
     from ptrl_jax.run import new_run_dir, run
 
     configs, settings = batch_configs(exp, cli)
     batch_dir = new_run_dir(ExperimentConfig(name=settings["name"], runs_dir=settings["runs_dir"]))
     table_rows: list[dict[str, Any]] = []
+    grid_table: list[dict[str, Any]] = []
     results = {}
     for child, cfg in configs.items():
         result = run(cfg, run_dir=batch_dir / child, show_progress=show_progress)
@@ -105,6 +108,8 @@ def run_batch(exp: str, cli: Mapping[str, Any], show_progress: bool | None = Non
                 child, result["rows"], result["run_dir"], checker or mjx_walking_check, cfg.report.final_window,
                 compile_s=result["compile_s"], train_s=result["run_s"])
             write_walking_table(batch_dir, settings, configs, table_rows)
+            grid_table += walking_table.grid_rows(child, result["rows"], result["run_dir"], grid_checker or mujoco_grid)
+            write_grid_table(batch_dir, grid_table)
         else:
             table_rows += transfer_table.experiment_rows(
                 child, result["rows"], settings["transfer_preset"], cfg.report.threshold_fraction,
@@ -119,6 +124,31 @@ def mjx_walking_check(checkpoint: Path) -> list[dict[str, Any]]:
     from ptrl_jax import evaluate
 
     return evaluate.run_walking_check(evaluate.policy_from_checkpoint(str(checkpoint)))
+
+
+def mujoco_grid(checkpoint: Path) -> dict[str, Any]:
+    """The robot's default command grid with pushes (``command_grid``), MuJoCo C, of one
+    checkpoint; its files go beside it (``<checkpoint>_grid_mujoco/``)."""
+    from ptrl_jax import command_grid, evaluate
+
+    policy = evaluate.policy_from_checkpoint(str(checkpoint))
+    grid = command_grid.default_grid(policy["env"], [c.command for c in evaluate.walking_checks(policy["robot"])],
+                                     pushes=True)
+    result = evaluate.run_grid(policy, grid, sim="mujoco")
+    command_grid.write_outputs(checkpoint.with_name(f"{checkpoint.stem}_grid_mujoco"), result["robot"], "mujoco", grid,
+                               result["summary"], result["pushed"], result["verdict"], result["walking_check"])
+    return result
+
+
+def write_grid_table(batch_dir: Path, rows: list[dict[str, Any]]) -> None:
+    artifacts.write_metrics_csv(batch_dir / "command_grids.csv", [{k: r.get(k, "") for k in walking_table.GRID_FIELDS}
+                                                                 for r in rows])
+    notes = ["Each scratch checkpoint's default grid (its training command ranges, 20 s per command, mean action) "
+             "in MuJoCo C, then the same grid pushed 4 times per command (U(-0.5, 0.5) m/s per axis every 8 s); "
+             "goals: no fall, mean |vx| and |vy| error <= 0.1 m/s, mean |yaw| error <= 0.2 rad/s, <= 5 % of pushed "
+             "rollouts fallen (`python -m ptrl_jax.evaluate ckpt=... grid=true sim=mujoco pushes=true`; each "
+             "checkpoint's table and heat map are in `<checkpoint>_grid_mujoco/`)"]
+    artifacts.atomic_write_text(batch_dir / "command_grids.md", walking_table.format_grid_markdown(rows, notes))
 
 
 def write_walking_table(batch_dir: Path, settings: Mapping[str, Any], configs: Mapping[str, ExperimentConfig],

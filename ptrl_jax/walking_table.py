@@ -24,6 +24,12 @@ FIELDS = (
 Checker = Callable[[Path], list[dict[str, Any]]]
 """Checkpoint path -> one verdict per check (``evaluate.run_walking_check``'s dicts)."""
 
+GridChecker = Callable[[Path], dict[str, Any]]
+"""Checkpoint path -> ``evaluate.run_grid``'s result (summary, pushed summary, verdict)."""
+
+GRID_FIELDS = ("experiment", "robot", "seed", "sim", "cells", "error_vx", "error_vy", "error_yaw", "cells_with_fall",
+               "push_fall_rate", "passed", "why_not")
+
 
 def scratch_checkpoint(run_dir: Path, robot: str, seed: int, multi_target: bool) -> Path:
     """The file ``run.save_outputs`` writes for a scratch run (``target_[<robot>_]scratch_seed<k>.npz``)."""
@@ -56,6 +62,41 @@ def experiment_rows(
                             "speed_error": float(v["forward_speed_error"]), "passed": bool(v["passed"]),
                             "why_not": v["why_not"]})
     return out
+
+
+def grid_rows(experiment: str, metrics: Sequence[Mapping[str, Any]], run_dir: Path,
+              grid_checker: GridChecker) -> list[dict[str, Any]]:
+    """One row per target robot and seed of the experiment's scratch runs: the command grid's
+    mean errors, falls and verdict (``command_grid``)."""
+    target_rows = [r for r in metrics if r["stage"] == "target" and r["preset"] == "scratch"]
+    robots = list(dict.fromkeys(str(r["robot"]) for r in target_rows))
+    all_robots = {str(r["robot"]) for r in metrics if r["stage"] == "target"}
+    out = []
+    for robot in robots:
+        seeds = sorted({int(r["seed"]) for r in target_rows if r["robot"] == robot})
+        for seed in seeds:
+            g = grid_checker(scratch_checkpoint(run_dir, robot, seed, len(all_robots) > 1))
+            s, pushed = g["summary"], g["pushed"]
+            out.append({"experiment": experiment, "robot": robot, "seed": seed, "sim": g["sim"],
+                        "cells": len(s["cells"]), **{f"error_{a}": s["mean_error"][a] for a in ("vx", "vy", "yaw")},
+                        "cells_with_fall": s["cells_with_fall"],
+                        "push_fall_rate": pushed["fall_rate"] if pushed else float("nan"),
+                        "passed": bool(g["verdict"]["passed"]), "why_not": g["verdict"]["why_not"]})
+    return out
+
+
+def format_grid_markdown(rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = ()) -> str:
+    lines = ["# Every robot from scratch: the command grid", ""]
+    lines += [f"- {n}" for n in notes]
+    lines += ["", "| robot | experiment | seed | sim | cells | mean error vx / vy (m/s) / yaw (rad/s) | cells with a fall | "
+                  "pushed rollouts fallen | result |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        result = "passes" if r["passed"] else f"fails: {r['why_not']}"
+        lines.append(f"| {r['robot']} | {r['experiment']} | {r['seed']} | {r['sim']} | {r['cells']} | "
+                     f"{r['error_vx']:.3f} / {r['error_vy']:.3f} / {r['error_yaw']:.3f} | {r['cells_with_fall']} | "
+                     f"{fmt_number(r['push_fall_rate'], '{:.1%}')} | {result} |")
+    lines += ["", f"**{sum(bool(r['passed']) for r in rows)} of {len(rows)} runs meet every goal of the grid.**"]
+    return "\n".join(lines) + "\n"
 
 
 def format_markdown(rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = ()) -> str:

@@ -129,6 +129,27 @@ class TestBatch:
         assert calls == ["x/target_scratch_seed0.npz"]
 
 
+def grid_result(vx=0.05, falls=0):
+    """``evaluate.run_grid``'s fields that the grid table reads."""
+    summary = {"cells": [{}] * 45, "mean_error": {"vx": vx, "vy": 0.02, "yaw": 0.1}, "cells_with_fall": falls}
+    return {"sim": "mujoco", "summary": summary, "pushed": {"fall_rate": 0.025},
+            "verdict": {"passed": not falls, "why_not": "fell" if falls else ""}}
+
+
+class TestGridRows:
+    def test_one_row_per_robot_and_seed_of_the_scratch_runs(self, tmp_path):
+        seen = []
+
+        def grid_checker(path):
+            seen.append(path.name)
+            return grid_result()
+
+        rows = walking_table.grid_rows("exp", metrics(robot="tron1"), tmp_path, grid_checker)
+        assert seen == ["target_scratch_seed0.npz", "target_scratch_seed1.npz"]
+        assert [(r["robot"], r["seed"], r["cells"], r["push_fall_rate"], r["passed"]) for r in rows] == [
+            ("tron1", 0, 45, 0.025, True), ("tron1", 1, 45, 0.025, True)]
+
+
 @pytest.mark.xdist_group("smoke_go2_to_xbot")  # uses the smoke run of test_end_to_end
 class TestBatchRun:
     def test_checks_every_scratch_checkpoint_and_writes_the_table(self, tmp_path, smoke_run, monkeypatch):
@@ -152,11 +173,25 @@ class TestBatchRun:
             checked.append(path.name)
             return [verdict("stand", 0.0, 0.0), verdict("walk", 0.3, 0.0)]
 
+        gridded = []
+
+        def grid_checker(path):
+            assert path.is_file(), path
+            gridded.append(path.name)
+            return grid_result(vx=0.05 * (len(gridded)), falls=len(gridded) - 1)
+
         monkeypatch.setattr(run_cli, "run", fake_run)
         spec = tmp_path / "one.yaml"
         spec.write_text("batch: [go2_to_xbot]\ntable: walking_checks\n")
-        result = run_batch(str(spec), {"scale": "smoke", "runs_dir": str(tmp_path / "runs")}, checker=checker)
-        assert checked == ["target_scratch_seed0.npz", "target_scratch_seed1.npz"]
+        result = run_batch(str(spec), {"scale": "smoke", "runs_dir": str(tmp_path / "runs")}, checker=checker,
+                           grid_checker=grid_checker)
+        assert checked == ["target_scratch_seed0.npz", "target_scratch_seed1.npz"] == gridded
+        grids = artifacts.read_metrics_csv(result["run_dir"] / "command_grids.csv")
+        assert [(r["robot"], r["seed"], r["error_vx"], r["cells_with_fall"]) for r in grids] == [
+            ("xbot_l", 0, 0.05, 0), ("xbot_l", 1, 0.1, 1)]
+        grid_text = (result["run_dir"] / "command_grids.md").read_text()
+        assert "| xbot_l | go2_to_xbot | 1 | mujoco | 45 | 0.100 / 0.020 / 0.100 | 1 | 2.5% | fails: fell |" in grid_text
+        assert "**1 of 2 runs meet every goal of the grid.**" in grid_text
         assert result["table_path"] == result["run_dir"] / "walking_checks.md"
         table = artifacts.read_metrics_csv(result["run_dir"] / "walking_checks.csv")
         assert [(r["robot"], r["seed"], r["check"]) for r in table] == [
