@@ -191,3 +191,18 @@ def read_state_meta(path: Path) -> dict[str, Any]:
             return json.loads(bytes(z["__meta__"]).decode())
     except Exception as e:
         raise CheckpointError(f"resume state {path} is unreadable: {e}") from None
+
+
+def new_run_dir(runs_dir: str | Path, name: str) -> Path:
+    """A new folder ``<runs_dir>/<name>/<timestamp>[-k]/``, created (never an existing one)."""
+    from datetime import datetime
+
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    base = Path(runs_dir) / name
+    run_dir = base / stamp
+    k = 1
+    while run_dir.exists():
+        run_dir = base / f"{stamp}-{k}"
+        k += 1
+    run_dir.mkdir(parents=True)
+    return run_dir

@@ -20,7 +20,7 @@ is built and validated before the first one starts.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from ptrl_jax import artifacts, transfer_table, walking_table
 from ptrl_jax.config import SCALES, ExperimentConfig
@@ -84,17 +84,17 @@ def batch_configs(exp: str, cli: Mapping[str, Any]) -> tuple[dict[str, Experimen
     return configs, settings
 
 
-def run_batch(exp: str, cli: Mapping[str, Any], show_progress: bool | None = None,
+def run_batch(exp: str, cli: Mapping[str, Any], run: Callable[..., dict[str, Any]], show_progress: bool | None = None,
               checker: walking_table.Checker | None = None,
               grid_checker: walking_table.GridChecker | None = None) -> dict[str, Any]:
     """Run every experiment of the batch in turn and build its table. Returns the batch folder,
     the table (``table_path``), its rows and each experiment's run result. A ``walking_checks``
     batch also evaluates every scratch checkpoint on its command grid (``command_grids.md``).
-    ``checker`` and ``grid_checker`` replace the MJX walking check and the MuJoCo C grid (tests)."""
-    from ptrl_jax.run import new_run_dir, run
-
+    ``run(cfg, run_dir=..., show_progress=...)`` runs one experiment (``ptrl_jax.run.run``, passed
+    in so that this module does not import the CLI that imports it). ``checker`` and
+    ``grid_checker`` replace the MJX walking check and the MuJoCo C grid (tests)."""
     configs, settings = batch_configs(exp, cli)
-    batch_dir = new_run_dir(ExperimentConfig(name=settings["name"], runs_dir=settings["runs_dir"]))
+    batch_dir = artifacts.new_run_dir(settings["runs_dir"], settings["name"])
     table_rows: list[dict[str, Any]] = []
     grid_table: list[dict[str, Any]] = []
     results = {}

@@ -25,7 +25,6 @@ if __name__ == "__main__":
 
 import threading
 import time
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -348,15 +347,7 @@ def format_zero_shot(rows: list[dict[str, Any]], seconds: float = 20.0) -> str:
 
 
 def new_run_dir(cfg: ExperimentConfig) -> Path:
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = Path(cfg.runs_dir) / cfg.name
-    run_dir = base / stamp
-    k = 1
-    while run_dir.exists():
-        run_dir = base / f"{stamp}-{k}"
-        k += 1
-    run_dir.mkdir(parents=True)
-    return run_dir
+    return artifacts.new_run_dir(cfg.runs_dir, cfg.name)
 
 
 RESUME_STATE = "resume_state.npz"
@@ -637,7 +628,7 @@ def main(argv: list[str] | None = None) -> int:
         from ptrl_jax import batch
 
         if batch.is_batch(exp):  # several experiments and one table (exp=table4)
-            result = batch.run_batch(exp, args)
+            result = batch.run_batch(exp, args, run)
             print(f"batch folder: {result['run_dir']}")
             table = result["table_path"]
             if table.is_file():

@@ -1,5 +1,6 @@
 """The design's dependency rules: no flax/optax in our code, envs never import the trainer,
-nothing imports experiments."""
+nothing imports experiments, and no import cycle among our modules (lazy imports in function
+bodies count too)."""
 
 import ast
 from pathlib import Path
@@ -30,6 +31,45 @@ class TestDependencies:
     def test_nothing_imports_experiments(self):
         bad = [(str(p), m) for pkg in ("ptrl_jax", "envs") for p, m in imports(pkg) if m == "experiments"]
         assert not bad, bad
+
+
+def module_graph() -> dict[str, set[str]]:
+    """Our module -> our modules it imports anywhere in its file (``from ptrl_jax import x``
+    counts as importing ``ptrl_jax.x`` when that is a module)."""
+    ours = {f"{pkg}.{p.stem}" for pkg in ("ptrl_jax", "envs") for p in (ROOT / pkg).glob("*.py") if p.stem != "__init__"}
+    graph: dict[str, set[str]] = {}
+    for name in ours:
+        pkg, mod = name.split(".")
+        tree = ast.parse((ROOT / pkg / f"{mod}.py").read_text())
+        deps = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                deps |= {a.name for a in node.names if a.name in ours}
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                if node.module in ours:
+                    deps.add(node.module)
+                deps |= {f"{node.module}.{a.name}" for a in node.names if f"{node.module}.{a.name}" in ours}
+        graph[name] = deps - {name}
+    return graph
+
+
+def test_no_import_cycle():
+    graph = module_graph()
+    assert "ptrl_jax.batch" in graph["ptrl_jax.run"]  # imported inside run.main: lazy imports are read
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+
+    def visit(node, path):
+        state[node] = 1
+        for dep in sorted(graph[node]):
+            if state.get(dep) == 1:
+                raise AssertionError("import cycle: " + " -> ".join(path[path.index(dep):] + [dep]))
+            if dep not in state:
+                visit(dep, path + [dep])
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
 
 
 class TestQuietImport:

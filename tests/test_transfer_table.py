@@ -187,7 +187,7 @@ class TestBatchConfigs:
     ])
     def test_bad_input_is_refused_before_anything_runs(self, cli, message, tmp_path):
         with pytest.raises(ConfigError, match=message):
-            run_batch("table4", {**cli, "runs_dir": str(tmp_path)})
+            run_batch("table4", {**cli, "runs_dir": str(tmp_path)}, run=None)
         assert not any(tmp_path.iterdir())
 
     def test_a_batch_is_not_an_experiment(self):
@@ -203,8 +203,6 @@ class TestBatchRun:
         run() has its own tests, and a smoke run costs half a minute of the suite."""
         import shutil
 
-        from ptrl_jax import run as run_cli
-
         reference_cfg, reference_dir = smoke_run
         calls = []
 
@@ -214,10 +212,9 @@ class TestBatchRun:
             return {"run_dir": run_dir, "interrupted": False,
                     "rows": artifacts.read_metrics_csv(run_dir / "metrics.csv")}
 
-        monkeypatch.setattr(run_cli, "run", fake_run)
         spec = tmp_path / "one.yaml"
         spec.write_text("batch: [go2_to_xbot]\ntransfer_preset: L1\n")
-        result = run_batch(str(spec), {"scale": "smoke", "runs_dir": str(tmp_path / "runs")})
+        result = run_batch(str(spec), {"scale": "smoke", "runs_dir": str(tmp_path / "runs")}, fake_run)
         batch_dir = result["run_dir"]
         ((cfg, run_dir),) = calls
         # the shared smoke run also writes TensorBoard events; the batch's child does not

@@ -157,8 +157,6 @@ class TestBatchRun:
         checker sees each scratch checkpoint that the run wrote, and the table its verdicts."""
         import shutil
 
-        from ptrl_jax import run as run_cli
-
         reference_cfg, reference_dir = smoke_run
 
         def fake_run(cfg, run_dir, show_progress=None):
@@ -180,10 +178,9 @@ class TestBatchRun:
             gridded.append(path.name)
             return grid_result(vx=0.05 * (len(gridded)), falls=len(gridded) - 1)
 
-        monkeypatch.setattr(run_cli, "run", fake_run)
         spec = tmp_path / "one.yaml"
         spec.write_text("batch: [go2_to_xbot]\ntable: walking_checks\n")
-        result = run_batch(str(spec), {"scale": "smoke", "runs_dir": str(tmp_path / "runs")}, checker=checker,
+        result = run_batch(str(spec), {"scale": "smoke", "runs_dir": str(tmp_path / "runs")}, fake_run, checker=checker,
                            grid_checker=grid_checker)
         assert checked == ["target_scratch_seed0.npz", "target_scratch_seed1.npz"] == gridded
         grids = artifacts.read_metrics_csv(result["run_dir"] / "command_grids.csv")
