@@ -64,12 +64,18 @@ class CommandConfig:
     zero_below: float = 0.2
     """Planar commands with norm below this become exactly zero (legged_gym), so the
     policy also learns to stand still."""
+    zero_share: float = 0.0
+    """Share of sampled commands set to exactly (0, 0, 0), yaw included, so that standing
+    still under a zero command is trained on purpose (0: off, and the command stream is the
+    same as without the option)."""
 
     def __post_init__(self):
         for name in ("lin_vel_x", "lin_vel_y", "yaw_rate"):
             lo, hi = getattr(self, name)
             if lo > hi:
                 raise ValueError(f"commands.{name}: low {lo} > high {hi}")
+        if not 0.0 <= self.zero_share <= 1.0:
+            raise ValueError(f"commands.zero_share must lie in [0, 1], got {self.zero_share}")
         if self.resample_time_s <= 0:
             raise ValueError(f"commands.resample_time_s must be > 0, got {self.resample_time_s}")
 
@@ -280,7 +286,11 @@ class LeggedEnv(PipelineEnv):
         hi = jnp.array([c.lin_vel_x[1], c.lin_vel_y[1], c.yaw_rate[1]])
         cmd = jax.random.uniform(rng, (3,), minval=lo, maxval=hi)
         planar = jnp.linalg.norm(cmd[:2]) >= c.zero_below
-        return cmd.at[:2].multiply(planar)
+        cmd = cmd.at[:2].multiply(planar)
+        if c.zero_share > 0:  # static: without it the stream is the uniform draw's alone
+            stand = jax.random.bernoulli(jax.random.fold_in(rng, 1), c.zero_share)
+            cmd = jnp.where(stand, 0.0, cmd)
+        return cmd
 
     # ----- reset --------------------------------------------------------------------------------
     def _initial_qpos_qvel(self, rng: jax.Array) -> tuple[jax.Array, jax.Array]:

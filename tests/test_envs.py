@@ -221,3 +221,34 @@ class TestReferenceGait:
         ref, stance = env.reference({"step": jnp.asarray(0)})  # sin = 0: both feet down
         assert np.asarray(stance).tolist() == [True, True]
         np.testing.assert_allclose(np.asarray(ref), env.mj_model.key("home").qpos[7:], atol=1e-7)
+
+
+class TestCommandSampling:
+    """``LeggedEnv.sample_command`` (the env is built but never stepped: no MJX compile)."""
+
+    def draws(self, env, n=2000):
+        return np.asarray(jax.vmap(env.sample_command)(jax.random.split(jax.random.PRNGKey(3), n)))
+
+    def env(self, **commands):
+        import envs
+
+        cfg = envs.default_config("go2")
+        return envs.make("go2", dataclasses.replace(cfg, commands=dataclasses.replace(cfg.commands, **commands)))
+
+    def test_zero_share_off_keeps_the_uniform_stream(self):
+        base, off = self.draws(self.env(zero_below=0.0)), self.draws(self.env(zero_below=0.0, zero_share=0.0))
+        np.testing.assert_array_equal(base, off)
+
+    def test_a_share_of_commands_is_exactly_zero(self):
+        plain = self.draws(self.env(zero_below=0.0))
+        shared = self.draws(self.env(zero_below=0.0, zero_share=0.25))
+        zero = np.all(shared == 0.0, axis=1)
+        assert abs(zero.mean() - 0.25) < 0.03 and not np.any(np.all(plain == 0.0, axis=1))
+        np.testing.assert_array_equal(shared[~zero], plain[~zero])  # the others are the same draws
+        assert np.all(np.all(self.draws(self.env(zero_share=1.0)) == 0.0, axis=1))
+
+    def test_a_share_outside_zero_to_one_is_refused(self):
+        import envs
+
+        with pytest.raises(ValueError, match=r"zero_share must lie in \[0, 1\], got 1.5"):
+            dataclasses.replace(envs.default_config("go2").commands, zero_share=1.5)
