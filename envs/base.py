@@ -183,7 +183,27 @@ def _per_joint(values: tuple[float, ...], n: int, name: str) -> np.ndarray:
     return v
 
 
-class Transition(NamedTuple):
+class StepInfo(NamedTuple):
+    """What a trainer reads of a stepped ``State`` beyond obs, reward and metrics: the env's
+    half of the contract with ``ptrl_jax.train`` (``StepInfo.of(state)``). The values live in
+    ``state.info`` (Brax's wrappers need a dict there); this record names and types them."""
+
+    termination: jax.Array
+    """1.0 where the step ended the episode by a fall or non-finite physics (no bootstrap)."""
+    truncation: jax.Array
+    """1.0 where the step ended the episode by its time limit (the value bootstraps)."""
+    final_obs: dict
+    """The observation the step reached, before an auto-reset replaced ``state.obs``."""
+    nonfinite: jax.Array
+    """1.0 where the physics state became non-finite (the env was reset)."""
+
+    @classmethod
+    def of(cls, state: State) -> "StepInfo":
+        info = state.info
+        return cls(info["termination"], info["truncation"], info["final_obs"], info["nonfinite"])
+
+
+class StepOutcome(NamedTuple):
     """What ``LeggedEnv.evaluate_transition`` returns: one step's outcome before any reset."""
 
     obs: dict
@@ -395,7 +415,7 @@ class LeggedEnv(PipelineEnv):
         tilted = self.projected_gravity(data)[2] > -jnp.cos(self.config.max_tilt_rad)
         return too_low | tilted
 
-    def evaluate_transition(self, data, action: jax.Array, info: dict) -> "Transition":
+    def evaluate_transition(self, data, action: jax.Array, info: dict) -> "StepOutcome":
         """Everything a step computes after the physics: rewards, observation, termination,
         truncation and command resampling. Pure in ``data`` (anything with qpos, qvel, xpos and
         site_xpos), so the MuJoCo C view (``envs.gym_env``) shares these definitions exactly."""
@@ -434,7 +454,7 @@ class LeggedEnv(PipelineEnv):
         info["truncation"] = truncation.astype(jnp.float32)
         info["termination"] = termination.astype(jnp.float32)
         info["nonfinite"] = nonfinite.astype(jnp.float32)
-        return Transition(obs, reward, metrics, info, termination, truncation, k_reset)
+        return StepOutcome(obs, reward, metrics, info, termination, truncation, k_reset)
 
     def step(self, state: State, action: jax.Array) -> State:
         data = self.physics_step(state.pipeline_state, action, state.info)

@@ -16,6 +16,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from envs.base import StepInfo
 from ptrl_jax import distributions, normalization
 from ptrl_jax.config import NetworkConfig, PPOConfig, PPOHparams
 from ptrl_jax.freeze import masked
@@ -45,6 +46,16 @@ class EpisodeStats(NamedTuple):
     last_terms: dict
     finished: jax.Array
     """Episodes finished per env since the start of training."""
+
+
+class RolloutCarry(NamedTuple):
+    """What the rollout's scan carries from one env step to the next."""
+
+    env_state: Any
+    episodes: EpisodeStats
+    stats: dict
+    """Observation statistics gathered this rollout (the normaliser in use stays fixed)."""
+    key: PRNGKey
 
 
 class TrainState(NamedTuple):
@@ -133,16 +144,15 @@ def make_train(
 
     # ----- rollout ---------------------------------------------------------------------------------
     def rollout(state: TrainState):
-        def env_step(carry, _):
-            env_state, episodes, new_stats, key = carry
-            key, action_key = jax.random.split(key)
-            obs = env_state.obs
+        def env_step(carry: RolloutCarry, _):
+            key, action_key = jax.random.split(carry.key)
+            obs = carry.env_state.obs
             obs_n = normalize_obs(state.normalizer, obs, ppo.normalize_observations)
             out = policy_apply(state.params, obs_n, network)
             action = distributions.sample(action_key, out.mean, out.std)
-            next_state = step_fn(env_state, action)
-            info = next_state.info
-            final_n = normalize_obs(state.normalizer, info["final_obs"], ppo.normalize_observations)
+            next_state = step_fn(carry.env_state, action)
+            info = StepInfo.of(next_state)
+            final_n = normalize_obs(state.normalizer, info.final_obs, ppo.normalize_observations)
             transition = Transition(
                 observation=obs_n,
                 action=action,
@@ -150,25 +160,25 @@ def make_train(
                 action_mean=out.mean,
                 action_std=out.std,
                 reward=next_state.reward,
-                termination=info["termination"],
-                truncation=info["truncation"],
+                termination=info.termination,
+                truncation=info.truncation,
                 final_observation=final_n,
             )
-            new_stats = {k: normalization.update(new_stats[k], obs[k]) for k in new_stats}
-            episodes = _track_episodes(episodes, next_state)
+            stats = {k: normalization.update(carry.stats[k], obs[k]) for k in carry.stats}
             extras = {
-                "nonfinite": jnp.sum(info["nonfinite"]),
+                "nonfinite": jnp.sum(info.nonfinite),
                 "terms": {k: jnp.mean(v) for k, v in next_state.metrics.items()},
             }
-            return (next_state, episodes, new_stats, key), (transition, extras)
+            return RolloutCarry(next_state, _track_episodes(carry.episodes, next_state), stats, key), (transition, extras)
 
         key, rollout_key = jax.random.split(state.key)
-        (env_state, episodes, new_stats, _), (transitions, extras) = jax.lax.scan(
+        end, (transitions, extras) = jax.lax.scan(
             env_step,
-            (state.env_state, state.episodes, state.normalizer, rollout_key),
+            RolloutCarry(state.env_state, state.episodes, state.normalizer, rollout_key),
             None,
             length=ppo.unroll_length,
         )
+        env_state, episodes, new_stats = end.env_state, end.episodes, end.stats
         return env_state, episodes, new_stats, key, transitions, extras
 
     # ----- update ------------------------------------------------------------------------------------
