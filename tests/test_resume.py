@@ -115,6 +115,35 @@ class TestKillAndResumeWithMujocoC:
                     assert np.array_equal(ref[key], got[key]), (name, key)  # bitwise
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("cpu_shaped_resume")
+class TestKillAndResumeCpuShaped:
+    def test_kill_9_then_resume_at_cpu_shapes_is_bitwise(self, tmp_path):
+        """A1 from scratch at its scale=cpu shapes (1024 envs x 24 steps, MuJoCo C), 3
+        iterations: killed after its first checkpoint and resumed by a new process, it ends
+        bitwise where an uninterrupted run does. (Slow: about 3 minutes on 2 cores.)"""
+        args = ["exp=a1_from_scratch", "scale=cpu", "engine=mujoco", "checkpoint_every=1", "progress=false",
+                "target.ppo.num_iterations=3", "target.ppo.final_noise_iterations=1", "report.zero_shot_check=false"]
+        reference = start_cli([*args, f"runs_dir={tmp_path / 'ref'}"])
+        out, _ = reference.communicate(timeout=1200)
+        assert reference.returncode == 0, out
+        (ref_dir,) = (tmp_path / "ref" / "a1_from_scratch").iterdir()
+        proc = start_cli([*args, f"runs_dir={tmp_path / 'cut'}"])
+        run_dir = wait_for_saved_state(tmp_path / "cut", proc, timeout_s=1200, exp="a1_from_scratch")
+        proc.kill()  # SIGKILL: no handler runs
+        proc.wait()
+        assert not (run_dir / "report.md").exists(), "the run finished before it was killed"
+        resumed = start_cli([f"resume={run_dir}"])
+        out, _ = resumed.communicate(timeout=1200)
+        assert resumed.returncode == 0, out
+        assert metrics_without_wall_time(run_dir) == metrics_without_wall_time(ref_dir)
+        for name in ("target_scratch_seed0.npz",):
+            ref, got = np.load(ref_dir / name), np.load(run_dir / name)
+            for key in ref.files:
+                if key != "meta":
+                    assert np.array_equal(ref[key], got[key]), (name, key)  # bitwise
+
+
 class TestResumeUnderAnotherRuntime:
     def test_is_refused_naming_the_difference(self, tmp_path):
         (tmp_path / "config.yaml").write_text("name: go2_to_xbot\nscale: smoke\n")
