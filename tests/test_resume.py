@@ -85,34 +85,41 @@ class TestKillAndResume:
         assert not (run_dir / run_cli.RESUME_STATE).exists()  # finished: state removed
 
 
+def kill_resume_and_compare(tmp_path: Path, args: list[str], exp: str, timeout_s: float = 900) -> list[str]:
+    """Run ``args`` uninterrupted; run it again, kill -9 it after its first saved state, resume
+    it with ``resume=DIR`` in a new process; assert metrics and checkpoints bitwise equal.
+    Returns the checkpoint names compared."""
+    reference = start_cli([*args, f"runs_dir={tmp_path / 'ref'}"])
+    out, _ = reference.communicate(timeout=timeout_s)
+    assert reference.returncode == 0, out
+    (ref_dir,) = (tmp_path / "ref" / exp).iterdir()
+    proc = start_cli([*args, f"runs_dir={tmp_path / 'cut'}"])
+    run_dir = wait_for_saved_state(tmp_path / "cut", proc, timeout_s=timeout_s, exp=exp)
+    proc.kill()  # SIGKILL: no handler runs
+    proc.wait()
+    assert not (run_dir / "report.md").exists(), "the run finished before it was killed"
+    resumed = start_cli([f"resume={run_dir}"])
+    out, _ = resumed.communicate(timeout=timeout_s)
+    assert resumed.returncode == 0, out
+    assert metrics_without_wall_time(run_dir) == metrics_without_wall_time(ref_dir)
+    names = sorted(p.name for p in ref_dir.glob("*.npz"))
+    assert names and names == sorted(p.name for p in run_dir.glob("*.npz"))
+    for name in names:
+        ref, got = np.load(ref_dir / name), np.load(run_dir / name)
+        for key in ref.files:
+            if key != "meta":
+                assert np.array_equal(ref[key], got[key]), (name, key)  # bitwise
+    return names
+
+
 @pytest.mark.xdist_group("engine_mujoco_resume")
 class TestKillAndResumeWithMujocoC:
     def test_kill_9_then_resume_from_the_command_line_is_bitwise(self, tmp_path):
         """engine=mujoco: the physics state (warm start included) travels in the program state,
         so a run killed after its first checkpoint and resumed by ``python -m ptrl_jax.run
         resume=DIR``, a new process, ends bitwise where an uninterrupted run does."""
-        args = ["engine=mujoco", "checkpoint_every=1", "report.zero_shot_check=false"]
-        reference = start_smoke_run(tmp_path / "ref", *args, exp="go2_to_a1")
-        out, _ = reference.communicate(timeout=900)
-        assert reference.returncode == 0, out
-        (ref_dir,) = (tmp_path / "ref" / "go2_to_a1").iterdir()
-
-        proc = start_smoke_run(tmp_path / "cut", *args, exp="go2_to_a1")
-        run_dir = wait_for_saved_state(tmp_path / "cut", proc, exp="go2_to_a1")
-        proc.kill()  # SIGKILL: no handler runs
-        proc.wait()
-        assert not (run_dir / "report.md").exists(), "the run finished before it was killed"
-        resumed = start_cli([f"resume={run_dir}"])
-        out, _ = resumed.communicate(timeout=900)
-        assert resumed.returncode == 0, out
-        assert metrics_without_wall_time(run_dir) == metrics_without_wall_time(ref_dir)
-        names = sorted(p.name for p in ref_dir.glob("*.npz"))
-        assert names and names == sorted(p.name for p in run_dir.glob("*.npz"))
-        for name in names:
-            ref, got = np.load(ref_dir / name), np.load(run_dir / name)
-            for key in ref.files:
-                if key != "meta":
-                    assert np.array_equal(ref[key], got[key]), (name, key)  # bitwise
+        kill_resume_and_compare(tmp_path, ["exp=go2_to_a1", "scale=smoke", "engine=mujoco", "checkpoint_every=1",
+                                           "report.zero_shot_check=false"], "go2_to_a1")
 
 
 @pytest.mark.slow
@@ -121,27 +128,12 @@ class TestKillAndResumeCpuShaped:
     def test_kill_9_then_resume_at_cpu_shapes_is_bitwise(self, tmp_path):
         """A1 from scratch at its scale=cpu shapes (1024 envs x 24 steps, MuJoCo C), 3
         iterations: killed after its first checkpoint and resumed by a new process, it ends
-        bitwise where an uninterrupted run does. (Slow: about 3 minutes on 2 cores.)"""
-        args = ["exp=a1_from_scratch", "scale=cpu", "engine=mujoco", "checkpoint_every=1", "progress=false",
-                "target.ppo.num_iterations=3", "target.ppo.final_noise_iterations=1", "report.zero_shot_check=false"]
-        reference = start_cli([*args, f"runs_dir={tmp_path / 'ref'}"])
-        out, _ = reference.communicate(timeout=1200)
-        assert reference.returncode == 0, out
-        (ref_dir,) = (tmp_path / "ref" / "a1_from_scratch").iterdir()
-        proc = start_cli([*args, f"runs_dir={tmp_path / 'cut'}"])
-        run_dir = wait_for_saved_state(tmp_path / "cut", proc, timeout_s=1200, exp="a1_from_scratch")
-        proc.kill()  # SIGKILL: no handler runs
-        proc.wait()
-        assert not (run_dir / "report.md").exists(), "the run finished before it was killed"
-        resumed = start_cli([f"resume={run_dir}"])
-        out, _ = resumed.communicate(timeout=1200)
-        assert resumed.returncode == 0, out
-        assert metrics_without_wall_time(run_dir) == metrics_without_wall_time(ref_dir)
-        for name in ("target_scratch_seed0.npz",):
-            ref, got = np.load(ref_dir / name), np.load(run_dir / name)
-            for key in ref.files:
-                if key != "meta":
-                    assert np.array_equal(ref[key], got[key]), (name, key)  # bitwise
+        bitwise where an uninterrupted run does. (Slow: 7 minutes on 2 shared cores.)"""
+        names = kill_resume_and_compare(tmp_path, [
+            "exp=a1_from_scratch", "scale=cpu", "engine=mujoco", "checkpoint_every=1", "progress=false",
+            "target.ppo.num_iterations=3", "target.ppo.final_noise_iterations=1", "report.zero_shot_check=false"],
+            "a1_from_scratch", timeout_s=1200)
+        assert names == ["target_scratch_seed0.npz"]
 
 
 class TestResumeUnderAnotherRuntime:
