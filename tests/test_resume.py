@@ -117,9 +117,12 @@ class TestKillAndResumeWithMujocoC:
     def test_kill_9_then_resume_from_the_command_line_is_bitwise(self, tmp_path):
         """engine=mujoco: the physics state (warm start included) travels in the program state,
         so a run killed after its first checkpoint and resumed by ``python -m ptrl_jax.run
-        resume=DIR``, a new process, ends bitwise where an uninterrupted run does."""
-        kill_resume_and_compare(tmp_path, ["exp=go2_to_a1", "scale=smoke", "engine=mujoco", "checkpoint_every=1",
-                                           "report.zero_shot_check=false"], "go2_to_a1")
+        resume=DIR``, a new process, ends bitwise where an uninterrupted run does. (A1 from
+        scratch, 2 seeds: the source-transfer-target chain across a kill is the MJX test's.)"""
+        names = kill_resume_and_compare(tmp_path, [
+            "exp=a1_from_scratch", "scale=smoke", "engine=mujoco", "seeds=2", "checkpoint_every=1",
+            "target.ppo.num_iterations=3", "report.zero_shot_check=false"], "a1_from_scratch")
+        assert names == ["target_scratch_seed0.npz", "target_scratch_seed1.npz"]
 
 
 @pytest.mark.slow
