@@ -471,7 +471,7 @@ def grid_from_args(args: Mapping[str, str], policy: Mapping[str, Any], seconds: 
     fields: dict[str, Any] = {"seconds": seconds,
                               "pushes": coerce(args.get("pushes", "false"), bool, "pushes")}
     if "settle" in args:
-        fields["settle_s"] = float(args["settle"])
+        fields["settle_s"] = coerce(args["settle"], float, "settle")
     if "push_seeds" in args:
         fields["push_seeds"] = coerce(args["push_seeds"], int, "push_seeds")
     if "push_interval" in args:
