@@ -222,8 +222,9 @@ class TransferConfig:
     mode: str = "paper"
     """``paper``: copy the actor's L1 and L2, everything else fresh (the paper's transfer).
     ``semantic``: map the whole agent (input and output layers, log-std, normaliser, critic)
-    through the robots' declared observations and joint roles (``ptrl_jax.semantic``). A variant
-    named ``<preset>@semantic`` or ``<preset>@paper`` picks its own mode."""
+    through the robots' declared observations and joint roles (``ptrl_jax.semantic``).
+    ``semantic_actor``: the same, but the critic starts fresh. A variant named
+    ``<preset>@<mode>`` picks its own mode."""
     joint_map: tuple[str, ...] = ()
     """Overrides of the role-based joint pairs for semantic transfers, ``"<target joint>:<source
     joint>"`` (``-<source joint>`` flips the sign, ``none`` leaves the joint unmapped)."""
@@ -316,7 +317,7 @@ class ExperimentConfig:
         bad = [p for p in self.freeze_presets if p.partition(MODE_SEPARATOR)[0] not in FREEZE_PRESETS]
         if bad:
             raise ValueError(f"freeze_presets: unknown {bad}; choose from {list(FREEZE_PRESETS)}, "
-                             f"optionally with {MODE_SEPARATOR}semantic or {MODE_SEPARATOR}paper")
+                             f"optionally with {MODE_SEPARATOR}<mode>, a mode of {list(TRANSFER_MODES)}")
         for p in self.freeze_presets:
             variant(p)  # a bad mode suffix names itself
         from envs.mujoco_engine import ENGINE_CHOICES
@@ -363,7 +364,7 @@ class ExperimentConfig:
     @property
     def semantic(self) -> bool:
         """Whether any variant transfers semantically (the program then builds the map)."""
-        return any(variant(v).mode_index == 2 for v in self.variants)
+        return any(variant(v).mode_index >= 2 for v in self.variants)
 
     @property
     def source_iterations(self) -> int:

@@ -130,7 +130,7 @@ def make_program(
     # Built before anything compiles: a joint map naming a joint that does not exist fails here.
     transfer_maps = ({r: semantic.build_map(source_env, e, cfg.transfer.joint_map, cfg.transfer.unmapped_blocks)
                       for r, e in target_envs.items()} if cfg.semantic else {})
-    modes = [variant(p).mode_index for p in presets]  # 0 scratch, 1 paper, 2 semantic
+    modes = [variant(p).mode_index for p in presets]  # 0 scratch, 1 paper, 2 semantic, 3 semantic_actor
 
     def init_robot_targets(target: Trainer, robot: str, robot_index: int, source, target_key,
                            init_target=None) -> TrainState:
@@ -151,12 +151,15 @@ def make_program(
                 return target.init(train_k, hparams, mask, pick(init_target["params"], fresh), run_id,
                                    pick(init_target["normalizer"], fresh_norm))
             params = transfer(source["params"], fresh, mode == 1)
-            if 2 not in modes:  # static: programs without a semantic variant are unchanged
+            if not cfg.semantic:  # static: programs without a semantic variant are unchanged
                 return target.init(train_k, hparams, mask, params, run_id)
             fresh_norm = {k: normalization.init(n) for k, n in target.observation_sizes.items()}
             sem_params, sem_norm = semantic.apply(transfer_maps[robot], source["params"], source["normalizer"],
                                                   fresh, fresh_norm, cfg.transfer.noise_std)
-            is_sem = mode == 2
+            if 3 in modes:  # semantic_actor: the mapped actor with the fresh critic
+                sem_params = {**sem_params, "critic": jax.tree.map(
+                    lambda a, b: jnp.where(mode == 3, a, b), fresh["critic"], sem_params["critic"])}
+            is_sem = mode >= 2
             params = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_params, params)
             norm = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_norm, fresh_norm)
             return target.init(train_k, hparams, mask, params, run_id, norm)

@@ -315,7 +315,7 @@ def zero_shot_rows(cfg: ExperimentConfig, robot: str, rows, initial: Any, checke
         first = [r["step_reward"] for r in rows if r["stage"] == "target" and r["robot"] == robot
                  and r["preset"] == name and r["iteration"] == 1]
         row = {"variant": name, "initialisation": ("checkpoint" if cfg.init_checkpoint and mode else
-                                                    ("scratch", "paper", "semantic")[mode]),
+                                                    ("scratch", *TRANSFER_MODES)[mode]),
                "first_reward_mean": float(np.mean(first)), "first_reward_std": float(np.std(first)),
                "checks": None}
         if initial is not None:

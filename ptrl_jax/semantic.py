@@ -222,11 +222,13 @@ def _map_mlp(src: Params, fresh: Params, m: EntryMap, output=None) -> Params:
 
 
 def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, target_params: Params,
-          target_normalizer: dict, noise_std: float = 0.0) -> tuple[Params, dict]:
+          target_normalizer: dict, noise_std: float = 0.0, critic: bool = True) -> tuple[Params, dict]:
     """The semantic transfer: the target's initial (params, normaliser) from the source's.
     ``target_params``/``target_normalizer`` are the fresh ones (unmapped output columns start
     from them). ``noise_std`` > 0 starts every joint's policy std there instead of carrying the
-    source's. Traceable; the maps are static."""
+    source's. ``critic=False`` keeps the fresh critic (mode ``semantic_actor``); the
+    normaliser is mapped either way (its statistics describe the target's observations, not a
+    learned value). Traceable; the maps are static."""
     has = tmap.joint_source >= 0
     idx = np.maximum(tmap.joint_source, 0)
     f = tmap.joint_factor.astype(np.float32)
@@ -237,7 +239,8 @@ def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, tar
         return {"w": w, "b": b}
 
     actor = _map_mlp(source_params["actor"], target_params["actor"], tmap.obs["state"], actor_output)
-    critic = _map_mlp(source_params["critic"], target_params["critic"], tmap.obs["privileged_state"])
+    critic = (_map_mlp(source_params["critic"], target_params["critic"], tmap.obs["privileged_state"])
+              if critic else target_params["critic"])
     if noise_std > 0:
         log_std = jnp.full_like(target_params["log_std"], np.log(noise_std))
     elif has.any():

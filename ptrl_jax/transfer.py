@@ -4,7 +4,8 @@
     python -m ptrl_jax.run exp=a1_from_scratch init_checkpoint=a1_init.npz freeze_presets=[none,scratch]
 
 ``mode=semantic`` maps the whole agent through the robots' declarations (``ptrl_jax.semantic``),
-``mode=paper`` copies the actor's L1 and L2 into a fresh network (``freeze.transfer``). The
+``mode=semantic_actor`` the same with a fresh critic, ``mode=paper`` copies the actor's L1 and L2
+into a fresh network (``freeze.transfer``). The
 checkpoint holds the parameters, the normaliser statistics, an all-false freeze mask and, in
 its metadata, the map (each target joint's source joint and factor, the matched observation
 entries), so a transfer can be inspected, evaluated (``ptrl_jax.evaluate ckpt=...``: the
@@ -64,8 +65,9 @@ def transfer_policy(policy: dict[str, Any], target_robot: str, mode: str = "sema
         except ValueError as e:
             raise ConfigError(str(e)) from None
         params, norm = semantic.apply(tmap, policy["params"], policy["normalizer"], fresh, fresh_norm,
-                                      transfer_cfg.noise_std)
-        meta["transfer"] = {"mode": "semantic", "noise_std": transfer_cfg.noise_std, **tmap.describe()}
+                                      transfer_cfg.noise_std, critic=mode == "semantic")
+        meta["transfer"] = {"mode": mode, "noise_std": transfer_cfg.noise_std,
+                            "critic": "mapped" if mode == "semantic" else "fresh", **tmap.describe()}
     to_np = lambda t: jax.tree.map(np.asarray, t)  # noqa: E731
     return {"params": to_np(params), "normalizer": to_np(norm), "meta": meta}
 
@@ -85,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         for key in ("source", "target", "out"):
             if key not in args:
                 raise ConfigError(f"{key}= is required: python -m ptrl_jax.transfer source=SRC.npz "
-                                  f"target=ROBOT mode=semantic|paper out=OUT.npz")
+                                  f"target=ROBOT mode={'|'.join(TRANSFER_MODES)} out=OUT.npz")
         mode = args.get("mode", "semantic")
         out = Path(args["out"])
         if out.exists() and out.resolve() == Path(args["source"]).resolve():
@@ -104,9 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     artifacts.save_checkpoint(out, params, result["normalizer"], jax.tree.map(np.asarray, empty_mask(params)),
                               result["meta"])
     t = result["meta"]["transfer"]
-    if t["mode"] == "semantic":
+    if t["mode"] != "paper":
         pairs = ", ".join(f"{j['target']}<-{j['source'] or 'fresh'}" for j in t["joints"])
-        print(f"semantic transfer {result['meta']['source_robot']} -> {args['target']}: joints {pairs}; "
+        print(f"{t['mode']} transfer {result['meta']['source_robot']} -> {args['target']}: joints {pairs}; "
               f"observation entries matched {t['matched_entries']} of {t['entries']}", file=sys.stderr)
     print(f"wrote {out}")
     return 0

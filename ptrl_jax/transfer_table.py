@@ -12,8 +12,8 @@ from finished runs. The rule, per target robot of an experiment:
   non-transferred layers and same env stream), then mean and std over the seeds where both
   reached the threshold;
 - the same for the semantic transfer (``ptrl_jax/semantic.py``): its best variant among those
-  named ``<preset>@semantic`` in the run, by mean env steps to the threshold (the choice is
-  named in the row, and made on the same seeds it is reported on).
+  named ``<preset>@semantic`` or ``<preset>@semantic_actor`` in the run, by mean env steps to
+  the threshold (the choice is named in the row, and made on the same seeds it is reported on).
 
 In one program every variant runs in lockstep under ``vmap`` and shares one clock, so the wall
 time of each run is the stage's time at that iteration, and the wall-time saving equals the
@@ -27,6 +27,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ptrl_jax.freeze import MODE_SEPARATOR
 from ptrl_jax.summary import curves_by_preset, fmt_number
 
 PAPER_AVERAGE_SAVING = 0.20
@@ -41,7 +42,10 @@ PAPER_HOURS: dict[str, tuple[float, float]] = {
 """Paper Table IV per target robot: (hours with transfer, hours without), 4096 envs on one RTX
 4090; the paper gives no seeds, thresholds or env steps."""
 
-SEMANTIC_SUFFIX = "@semantic"
+def is_semantic(name: str) -> bool:
+    """Whether variant ``name`` transfers semantically (``<preset>@semantic`` or
+    ``<preset>@semantic_actor``): the candidates for the semantic column."""
+    return name.partition(MODE_SEPARATOR)[2].startswith("semantic")
 
 FIELDS = (
     "experiment", "source", "target", "transfer_preset", "seeds", "threshold", "threshold_metric",
@@ -95,7 +99,7 @@ def robot_row(
     threshold_fraction: float, final_window: int, metric: str = "episode_reward",
 ) -> dict[str, Any]:
     """One Table IV row from the target rows of one robot (scratch and ``transfer_preset``
-    present; the semantic columns are filled when a ``<preset>@semantic`` variant ran).
+    present; the semantic columns are filled when a semantic variant ran, ``is_semantic``).
     ``metric``: the column whose curve reaches the threshold (``report.threshold_metric``)."""
     curves = curves_by_preset(rows, metric)
     missing = [p for p in ("scratch", transfer_preset) if p not in curves]
@@ -117,7 +121,7 @@ def robot_row(
                 "transfer_wall_s_mean": paper["wall_s_mean"],
                 **{k: paper[k] for k in ("steps_saved_mean", "steps_saved_std", "wall_saved_mean",
                                          "wall_saved_std", "seeds_both_reached")}})
-    semantic = [p for p in curves if p.endswith(SEMANTIC_SUFFIX)]
+    semantic = [p for p in curves if is_semantic(p)]
     if semantic:
         def rank(p):  # fewest mean steps to threshold; a seed that never reaches counts as never
             steps = times[p]["steps"]

@@ -112,6 +112,10 @@ def kill_resume_and_compare(tmp_path: Path, args: list[str], exp: str, timeout_s
     return names
 
 
+# Slow (about 2 min of one core): the suite keeps MuJoCo C's resume through
+# tests/test_devices.py's sharded run (SIGINT, then resume in the same process, bitwise) and kill -9 through the MJX
+# test above; this one is both at once.
+@pytest.mark.slow
 @pytest.mark.xdist_group("engine_mujoco_resume")
 class TestKillAndResumeWithMujocoC:
     def test_kill_9_then_resume_from_the_command_line_is_bitwise(self, tmp_path):

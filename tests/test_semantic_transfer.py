@@ -111,6 +111,17 @@ class TestGo2ToA1IsTheIdentity:
                             {k: reset[k] for k in ("actor", "critic")})
         assert all(jax.tree.leaves(same))
 
+    def test_semantic_actor_keeps_the_fresh_critic_and_maps_the_rest(self, robots):
+        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
+        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
+        m = semantic.build_map(robots["go2"], robots["a1"])
+        whole, whole_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+        actor, actor_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm, critic=False)
+        same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
+        assert same(actor["critic"], fresh["critic"]) and not same(actor["critic"], whole["critic"])
+        assert same(actor["actor"], whole["actor"]) and same(actor["log_std"], whole["log_std"])
+        assert same(actor_norm, whole_norm)
+
     def test_a_negative_noise_std_is_refused(self):
         from ptrl_jax.config import TransferConfig
 
@@ -221,6 +232,7 @@ class TestVariantNames:
         from ptrl_jax.freeze import variant, with_mode
 
         assert variant("L2@semantic").mode_index == 2 and variant("L2").mode_index == 1
+        assert variant("L2@semantic_actor").mode_index == 3 and variant("L2@semantic_actor").frozen == ("L2",)
         assert variant("scratch").mode_index == 0
         assert with_mode("rho0.5", "semantic") == "rho0.5@semantic" and with_mode("scratch", "semantic") == "scratch"
         assert variant("L2@paper").name == "L2"
@@ -266,6 +278,35 @@ class TestTransferTool:
         first = program.initial_targets(jax.jit(program.init)(jax.random.PRNGKey(0), None, start))["xbot_l"]
         assert np.array_equal(first.params["actor"]["layer_0"]["w"][0, 0], ckpt["params"]["actor"]["layer_0"]["w"])
         assert not np.array_equal(first.params["actor"]["layer_0"]["w"][1, 0], ckpt["params"]["actor"]["layer_0"]["w"])
+
+    def test_semantic_actor_variants_start_from_the_mapped_actor_and_a_fresh_critic(self, smoke_run, tmp_path):
+        """In the program: L2@semantic_actor's actor and normaliser are L2@semantic's, its critic
+        is the paper variant's (fresh from the same seed key), and the tool writes the same."""
+        from ptrl_jax import artifacts, transfer
+        from ptrl_jax.overrides import load_experiment
+        from ptrl_jax.program import make_program
+        from ptrl_jax.run import load_source_params
+
+        _, run_dir = smoke_run
+        src = run_dir / "source.npz"
+        cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={src}", "freeze_ratio=[]", "engine=mujoco",
+                                              "freeze_presets=[L2@semantic,L2@semantic_actor,L2]"])
+        program = make_program(cfg)
+        first = program.initial_targets(jax.jit(program.init)(jax.random.PRNGKey(0), load_source_params(cfg, program)))
+        params, norm = first["xbot_l"].params, first["xbot_l"].normalizer
+        pick = lambda tree, p: jax.tree.map(lambda x: np.asarray(x[p]), tree)  # noqa: E731
+        same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
+        sem, actor, paper = (pick(params, p) for p in range(3))
+        assert same(actor["actor"], sem["actor"]) and same(actor["log_std"], sem["log_std"])
+        assert same(pick(norm, 1), pick(norm, 0))
+        assert same(actor["critic"], paper["critic"]) and not same(actor["critic"], sem["critic"])
+        source_critic = artifacts.load_checkpoint(src)["params"]["critic"]
+        assert np.array_equal(sem["critic"]["layer_1"]["w"][0], source_critic["layer_1"]["w"])
+
+        out = tmp_path / "xbot_actor.npz"
+        assert transfer.main([f"source={src}", "target=xbot_l", "mode=semantic_actor", f"out={out}"]) == 0
+        meta = artifacts.load_checkpoint(out)["meta"]["transfer"]
+        assert meta["mode"] == "semantic_actor" and meta["critic"] == "fresh"
 
     def test_refusals_name_what_is_wrong(self, smoke_run, tmp_path, capsys):
         from ptrl_jax import transfer
