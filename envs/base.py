@@ -263,14 +263,21 @@ class LeggedEnv(PipelineEnv):
     def _init_family_info(self, data: Any, rng: jax.Array) -> dict:
         return {}
 
-    def _observe(self, data: Any, info: dict) -> tuple[dict[str, jax.Array], dict]:
-        """Return ({"state", "privileged_state"}, updated info) for the current data."""
+    def _step_features(self, data: Any, info: dict) -> dict[str, jax.Array]:
+        """Quantities that more than one of ``_reward_terms``, ``_after_step_info`` and
+        ``_observe`` read (foot contact, a gait reference), computed once per step and passed to
+        each. ``info`` is the step's, after its step counter advanced."""
+        return {}
+
+    def _observe(self, data: Any, info: dict, features: dict | None = None) -> tuple[dict[str, jax.Array], dict]:
+        """Return ({"state", "privileged_state"}, updated info) for the current data;
+        ``features`` is ``_step_features(data, info)`` (computed here when not given: at reset)."""
         raise NotImplementedError
 
-    def _reward_terms(self, data: Any, action: jax.Array, info: dict) -> dict[str, jax.Array]:
+    def _reward_terms(self, data: Any, action: jax.Array, info: dict, features: dict) -> dict[str, jax.Array]:
         raise NotImplementedError
 
-    def _after_step_info(self, data: Any, info: dict) -> dict:
+    def _after_step_info(self, data: Any, info: dict, features: dict) -> dict:
         """Family bookkeeping after rewards (e.g. feet air time)."""
         return info
 
@@ -425,7 +432,8 @@ class LeggedEnv(PipelineEnv):
         info["step"] = info["step"] + 1
 
         nonfinite = ~(jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel)))
-        terms = self._reward_terms(data, action, info)
+        features = self._step_features(data, info)  # once per step, read by the three below
+        terms = self._reward_terms(data, action, info, features)
         # Explicit float32: a weakly-typed leaf (from Python-scalar arithmetic) would change the
         # state's type after one step and make every jitted caller compile a second time.
         weighted = {
@@ -437,10 +445,10 @@ class LeggedEnv(PipelineEnv):
         reward = jnp.where(nonfinite, 0.0, reward).astype(jnp.float32)
         metrics = {f"reward/{k}": jnp.where(nonfinite, 0.0, v) for k, v in weighted.items()}
 
-        info = self._after_step_info(data, info)
+        info = self._after_step_info(data, info, features)
         info["last_action"] = jnp.asarray(action, jnp.float32)
         info["last_joint_vel"] = self.joint_vel(data)
-        obs, info = self._observe(data, info)
+        obs, info = self._observe(data, info, features)
         obs = jax.tree.map(lambda x: jnp.where(jnp.isfinite(x), x, 0.0), obs)
 
         termination = self.fell(data) | nonfinite

@@ -342,35 +342,43 @@ class BipedEnv(LeggedEnv):
             ]
         )
 
-    def _observe(self, data, info):
+    def _step_features(self, data, info):
+        ref, stance = self.reference(info)
+        contact = self.foot_contact(data)
+        return {"reference": ref, "stance": stance, "contact": contact,
+                # a foot down now, due down by the gait, or down the step before
+                "contact_filt": contact | stance | info["last_contact"],
+                "air_time": info["feet_air_time"] + self.config.ctrl_dt}
+
+    def _observe(self, data, info, features=None):
         frame = self._frame(data, info)
         shifted = jnp.concatenate([info["obs_history"][1:], frame[None]], axis=0)
         filled = jnp.broadcast_to(frame, info["obs_history"].shape)
         history = jnp.where(info["step"] == 0, filled, shifted)
         info = {**info, "obs_history": history}
-        ref, stance = self.reference(info)
+        features = self._step_features(data, info) if features is None else features
+        ref, stance = features["reference"], features["stance"]
         privileged = jnp.concatenate(
             [
                 frame,
                 self.base_lin_vel(data) * 2.0,
                 data.qpos[2:3],
                 stance.astype(jnp.float32),
-                self.foot_contact(data).astype(jnp.float32),
+                features["contact"].astype(jnp.float32),
                 self.joint_pos(data) - ref,
             ]
         )
         return {"state": history.reshape(-1), "privileged_state": privileged}, info
 
     # ----- rewards --------------------------------------------------------------------------------
-    def _reward_terms(self, data, action, info):
+    def _reward_terms(self, data, action, info, features):
         cfg = self.config
         cmd = info["command"]
         v, w = self.base_lin_vel(data), self.base_ang_vel(data)
         g = self.projected_gravity(data)
         q, qd = self.joint_pos(data), self.joint_vel(data)
         tau = self.pd_torque(data, self.joint_targets(action)) - self._kd * qd
-        ref, stance = self.reference(info)
-        contact = self.foot_contact(data)
+        ref, stance, contact = features["reference"], features["stance"], features["contact"]
         foot_pos = data.site_xpos[self._foot_sites]
         valid_history = info["step"] > 1  # finite differences need one step of this episode
         foot_speed = jnp.linalg.norm((foot_pos - info["last_foot_pos"])[:, :2], axis=-1) / cfg.ctrl_dt
@@ -381,9 +389,8 @@ class BipedEnv(LeggedEnv):
 
         swing = jnp.where(stance, 0.0, 1.0)
         clearance = jnp.where(jnp.abs(foot_pos[:, 2] - cfg.target_feet_height) < 0.01, 1.0, 0.0)
-        contact_filt = contact | stance | info["last_contact"]
-        air_time = info["feet_air_time"] + cfg.ctrl_dt
-        first_contact = (info["feet_air_time"] > 0.0) & contact_filt
+        air_time = features["air_time"]
+        first_contact = (info["feet_air_time"] > 0.0) & features["contact_filt"]
 
         def band(dist, lo, hi):
             d_min = jnp.clip(dist - lo, -0.5, 0.0)
@@ -436,13 +443,9 @@ class BipedEnv(LeggedEnv):
             "dof_acc": jnp.sum(((qd - info["last_joint_vel"]) / cfg.ctrl_dt) ** 2),
         }
 
-    def _after_step_info(self, data, info):
-        _, stance = self.reference(info)
-        contact = self.foot_contact(data)
-        contact_filt = contact | stance | info["last_contact"]
-        air_time = info["feet_air_time"] + self.config.ctrl_dt
-        info["feet_air_time"] = jnp.where(contact_filt, 0.0, air_time)
-        info["last_contact"] = contact
+    def _after_step_info(self, data, info, features):
+        info["feet_air_time"] = jnp.where(features["contact_filt"], 0.0, features["air_time"])
+        info["last_contact"] = features["contact"]
         info["last_foot_pos"] = data.site_xpos[self._foot_sites]
         info["last_last_action"] = info["last_action"]
         info["last_base_vel"] = data.qvel[:6]

@@ -176,7 +176,14 @@ class QuadrupedEnv(LeggedEnv):
     def _init_family_info(self, data, rng):
         return {"feet_air_time": jnp.zeros(4), "last_contact": jnp.zeros(4, bool)}
 
-    def _observe(self, data, info):
+    def _step_features(self, data, info):
+        contact = self.foot_contact(data)
+        return {"contact": contact,
+                "contact_filt": contact | info["last_contact"],  # a foot down this step or the last
+                "air_time": info["feet_air_time"] + self.config.ctrl_dt}
+
+    def _observe(self, data, info, features=None):
+        features = self._step_features(data, info) if features is None else features
         cmd_scale = jnp.array([2.0, 2.0, 0.25])
         state = jnp.concatenate(
             [
@@ -193,12 +200,12 @@ class QuadrupedEnv(LeggedEnv):
                 state,
                 self.base_lin_vel(data) * 2.0,
                 data.qpos[2:3],
-                self.foot_contact(data).astype(jnp.float32),
+                features["contact"].astype(jnp.float32),
             ]
         )
         return {"state": state, "privileged_state": privileged}, info
 
-    def _reward_terms(self, data, action, info):
+    def _reward_terms(self, data, action, info, features):
         cfg = self.config
         cmd = info["command"]
         v = self.base_lin_vel(data)
@@ -208,10 +215,8 @@ class QuadrupedEnv(LeggedEnv):
         qd = self.joint_vel(data)
         tau = self.pd_torque(data, self.joint_targets(action)) - self._kd * qd
 
-        contact = self.foot_contact(data)
-        contact_filt = contact | info["last_contact"]
-        first_contact = (info["feet_air_time"] > 0.0) & contact_filt
-        air_time = info["feet_air_time"] + cfg.ctrl_dt
+        air_time = features["air_time"]
+        first_contact = (info["feet_air_time"] > 0.0) & features["contact_filt"]
         moving = jnp.linalg.norm(cmd[:2]) > 0.1
         out_of_limits = jnp.clip(self._soft_lower - q, 0.0) + jnp.clip(q - self._soft_upper, 0.0)
         return {
@@ -229,10 +234,7 @@ class QuadrupedEnv(LeggedEnv):
             "stand_still": jnp.sum(jnp.abs(q - self._default_joints)) * (jnp.linalg.norm(cmd[:2]) < 0.1),
         }
 
-    def _after_step_info(self, data, info):
-        contact = self.foot_contact(data)
-        contact_filt = contact | info["last_contact"]
-        air_time = info["feet_air_time"] + self.config.ctrl_dt
-        info["feet_air_time"] = jnp.where(contact_filt, 0.0, air_time)
-        info["last_contact"] = contact
+    def _after_step_info(self, data, info, features):
+        info["feet_air_time"] = jnp.where(features["contact_filt"], 0.0, features["air_time"])
+        info["last_contact"] = features["contact"]
         return info
