@@ -163,7 +163,7 @@ class TestBatchConfigs:
         assert list(configs) == ["go2_to_xbot", "xbot_to_all", "go2_to_a1", "go2_to_anymal_c"]
         assert settings["transfer_preset"] == "L2"
         for cfg in configs.values():
-            assert cfg.scale == scale and {"L2", "none@semantic", "L2@semantic", "scratch"} == set(cfg.variants)
+            assert cfg.scale == scale and {"L2", "L2@semantic", "L2@semantic_actor", "scratch"} == set(cfg.variants)
         paper = [r for name in ("go2_to_xbot", "xbot_to_all") for r in configs[name].targets]
         assert len(paper) == 8 == len(set(paper))  # every robot of the paper is a target once
         assert [configs[n].target.robot for n in ("go2_to_a1", "go2_to_anymal_c")] == ["a1", "anymal_c"]
