@@ -269,7 +269,7 @@ class TestTransferTool:
         assert np.array_equal(ckpt["params"]["critic"]["layer_2"]["w"], src["critic"]["layer_2"]["w"])
 
         cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"init_checkpoint={out}", "freeze_presets=[L2,scratch]",
-                                              "freeze_ratio=[]"])
+                                              "freeze_ratio=[]", "engine=mujoco"])  # no MJX trace: 20 s less
         assert not cfg.trains_source and cfg.source_iterations == 0
         program = make_program(cfg)
         start = load_init_target(cfg, program)
@@ -289,11 +289,11 @@ class TestTransferTool:
 
         _, run_dir = smoke_run
         src = run_dir / "source.npz"
-        cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={src}", "freeze_ratio=[]", "engine=mujoco",
-                                              "freeze_presets=[L2@semantic,L2@semantic_actor,L2]"])
+        cfg = load_experiment("go2_to_a1", ["scale=smoke", f"source_checkpoint={src}", "engine=mujoco",
+                                            "freeze_presets=[L2@semantic,L2@semantic_actor,L2]"])
         program = make_program(cfg)
         first = program.initial_targets(jax.jit(program.init)(jax.random.PRNGKey(0), load_source_params(cfg, program)))
-        params, norm = first["xbot_l"].params, first["xbot_l"].normalizer
+        params, norm = first["a1"].params, first["a1"].normalizer
         pick = lambda tree, p: jax.tree.map(lambda x: np.asarray(x[p]), tree)  # noqa: E731
         same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
         sem, actor, paper = (pick(params, p) for p in range(3))
@@ -303,8 +303,8 @@ class TestTransferTool:
         source_critic = artifacts.load_checkpoint(src)["params"]["critic"]
         assert np.array_equal(sem["critic"]["layer_1"]["w"][0], source_critic["layer_1"]["w"])
 
-        out = tmp_path / "xbot_actor.npz"
-        assert transfer.main([f"source={src}", "target=xbot_l", "mode=semantic_actor", f"out={out}"]) == 0
+        out = tmp_path / "a1_actor.npz"
+        assert transfer.main([f"source={src}", "target=a1", "mode=semantic_actor", f"out={out}"]) == 0
         meta = artifacts.load_checkpoint(out)["meta"]["transfer"]
         assert meta["mode"] == "semantic_actor" and meta["critic"] == "fresh"
 
