@@ -3,8 +3,12 @@
 A smoke run spends nearly all its time compiling: XLA's CPU backend optimises the program's
 LLVM code for speed that a few iterations of 16 envs never use back. Measured on the 2-core CPU
 (``experiments/bench.py``'s machine, 2026-11-22), the go2_to_xbot smoke program's XLA compile
-took 120 s by default, 56 s at backend optimisation level 0, and 43 s with the legacy (non-thunk)
-CPU runtime as well; tracing (about 30 s) is unchanged.
+took 120 s by default and 56 s at backend optimisation level 0; tracing (about 30 s) is unchanged.
+
+The legacy (non-thunk) CPU runtime, ``--xla_cpu_use_thunk_runtime=false``, took that compile to
+43 s on the jaxlib of the time. The jaxlib this project now installs (0.8) has dropped it: its
+flag parser keeps the name only to print "is no longer supported" and sets nothing (XLA's
+debug_options_flags.cc), so the flag is no longer passed. The thunk runtime is the only one.
 
 XLA reads these flags once, when jax creates its CPU backend, so they must be set before
 anything runs a jax computation (importing brax or MJX already does). ``python -m ptrl_jax.run``
@@ -19,7 +23,7 @@ from __future__ import annotations
 
 import os
 
-FAST_COMPILE_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_thunk_runtime=false")
+FAST_COMPILE_FLAGS = ("--xla_backend_optimization_level=0",)
 """Appended to XLA_FLAGS, unless the user's XLA_FLAGS already names the setting."""
 
 
