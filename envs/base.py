@@ -185,7 +185,7 @@ def _per_joint(values: tuple[float, ...], n: int, name: str) -> np.ndarray:
 
 class StepInfo(NamedTuple):
     """What a trainer reads of a stepped ``State`` beyond obs, reward and metrics: the env's
-    half of the contract with ``ptrl_jax.train`` (``StepInfo.of(state)``). The values live in
+    half of the contract with ``ptrl_jax.core.train`` (``StepInfo.of(state)``). The values live in
     ``state.info`` (Brax's wrappers need a dict there); this record names and types them."""
 
     termination: jax.Array

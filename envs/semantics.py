@@ -3,7 +3,7 @@
 Every family declares its observation as a list of ``ObsEntry`` per observation key (the actor's
 ``state`` and the critic's ``privileged_state``), in the order ``_observe`` writes them; every
 robot declares each actuated joint's role in its config (``LocomotionConfig.joint_roles``).
-From these, ``ptrl_jax.semantic`` finds which entries and joints of two robots correspond.
+From these, ``ptrl_jax.core.semantic`` finds which entries and joints of two robots correspond.
 
 The physical convention
 -----------------------

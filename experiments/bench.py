@@ -35,10 +35,10 @@ import jax.numpy as jnp  # noqa: E402
 
 import envs  # noqa: E402
 from ptrl_jax.config import NetworkConfig, PPOConfig  # noqa: E402
-from ptrl_jax.freeze import empty_mask  # noqa: E402
-from ptrl_jax.overrides import load_experiment, parse_cli  # noqa: E402
-from ptrl_jax.program import make_program  # noqa: E402
-from ptrl_jax.train import make_train  # noqa: E402
+from ptrl_jax.core.freeze import empty_mask  # noqa: E402
+from ptrl_jax.io.overrides import load_experiment, parse_cli  # noqa: E402
+from ptrl_jax.core.program import make_program  # noqa: E402
+from ptrl_jax.core.train import make_train  # noqa: E402
 
 
 def machine() -> str:
@@ -231,8 +231,8 @@ def bench_engine(robot, engine, n, iters, ppo, net, sgd_flops_per_iteration, roo
     _, raw_s = timed(raw_random, states, jax.random.PRNGKey(4))
     trainer = make_train(env, ppo, net)
     params = trainer.init_params(jax.random.PRNGKey(1))
-    from ptrl_jax import distributions  # noqa: E402
-    from ptrl_jax.networks import policy_apply  # noqa: E402
+    from ptrl_jax.core import distributions  # noqa: E402
+    from ptrl_jax.core.networks import policy_apply  # noqa: E402
 
     @jax.jit
     def rollout(s, key):
@@ -266,8 +266,8 @@ def time_update(trainer, state, ppo, iters) -> float:
     """Seconds for ``iters`` calls of the trainer's SGD alone (``trainer.update``: epochs x
     minibatches of Adam steps) on a batch of ``ppo.batch_size`` random transitions of the env's
     shapes; the cost of the update does not depend on the values."""
-    from ptrl_jax.losses import LossInputs
-    from ptrl_jax.types import Transition
+    from ptrl_jax.core.losses import LossInputs
+    from ptrl_jax.core.types import Transition
 
     b, a = ppo.batch_size, state.params["log_std"].shape[0]
     keys = iter(jax.random.split(jax.random.PRNGKey(5), 8))

@@ -33,7 +33,9 @@ def main(argv: list[str]) -> None:
 
     from experiments.bench import machine
     from ptrl_jax import run as run_cli
-    from ptrl_jax.overrides import load_experiment
+    from ptrl_jax.io.checkpoints import load_init_target, load_source_params
+    from ptrl_jax.io.progress import Progress
+    from ptrl_jax.io.overrides import load_experiment
 
     exp = opts.pop("exp", "go2_from_scratch")
     envs_n = int(opts.pop("envs", "1024"))
@@ -49,11 +51,11 @@ def main(argv: list[str]) -> None:
                          f"target.ppo.num_iterations={iters + 1}", "target.ppo.final_noise_iterations=0", "progress=false", "checkpoint_every=1",
                          *[f"{k}={v}" for k, v in opts.items()]]
             cfg = load_experiment(exp, overrides)
-            progress = run_cli.Progress(cfg, False)
+            progress = Progress(cfg, False)
             key = jax.random.PRNGKey(cfg.seed)
             t = time.monotonic()
             program, init, advance, _ = run_cli._compiled_program(cfg, progress, key, np.int32(1), n)
-            state = init(key, run_cli.load_source_params(cfg, program), run_cli.load_init_target(cfg, program))
+            state = init(key, load_source_params(cfg, program), load_init_target(cfg, program))
             state = jax.block_until_ready(advance(state, np.int32(1)))  # warm-up iteration
             compile_s = time.monotonic() - t
             t = time.monotonic()

@@ -15,15 +15,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ptrl_jax.xla_flags import use_fast_compile  # noqa: E402
+from ptrl_jax.io.xla_flags import use_fast_compile  # noqa: E402
 
 use_fast_compile()  # before jax creates its backend, as for scale=smoke and the suite
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ptrl_jax.overrides import load_experiment, parse_cli  # noqa: E402
-from ptrl_jax.program import make_program  # noqa: E402
+from ptrl_jax.io.overrides import load_experiment, parse_cli  # noqa: E402
+from ptrl_jax.core.program import make_program  # noqa: E402
 
 
 def main(argv: list[str]) -> None:

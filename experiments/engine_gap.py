@@ -20,7 +20,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import envs  # noqa: E402
-from ptrl_jax.overrides import parse_cli  # noqa: E402
+from ptrl_jax.io.overrides import parse_cli  # noqa: E402
 
 STEPS = 10
 

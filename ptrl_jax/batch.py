@@ -22,9 +22,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from ptrl_jax import artifacts, transfer_table, walking_table
+from ptrl_jax.io import artifacts, transfer_table, walking_table
 from ptrl_jax.config import SCALES, ExperimentConfig
-from ptrl_jax.overrides import ConfigError, flatten, load_experiment, read_preset
+from ptrl_jax.io.overrides import ConfigError, flatten, load_experiment, read_preset
 
 BATCH_KEYS = ("batch", "overrides", "scales", "table", "transfer_preset")
 TABLES = ("table4", "walking_checks")

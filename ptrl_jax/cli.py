@@ -42,8 +42,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: unknown command {name!r}{hint}\n\n{usage()}", file=sys.stderr)
         return 2
     if name == "run":
-        # Before jax's backend exists, as `python -m ptrl_jax.run` does (ptrl_jax/xla_flags.py).
-        from ptrl_jax.xla_flags import configure_from_argv
+        # Before jax's backend exists, as `python -m ptrl_jax.run` does (ptrl_jax/io/xla_flags.py).
+        from ptrl_jax.io.xla_flags import configure_from_argv
 
         configure_from_argv(rest)
     module = importlib.import_module(COMMANDS[name][0])

@@ -303,7 +303,7 @@ def write_outputs(out_dir: Path, robot: str, sim: str, grid: CommandGrid, summar
     paths[2].write_text(json.dumps({"robot": robot, "sim": sim, "grid": dataclasses.asdict(grid),
                                     "summary": summary, "pushed": pushed, "verdict": judged,
                                     "walking_check": list(walking_check)}, indent=2))
-    from ptrl_jax.figures import plot_command_grid
+    from ptrl_jax.io.figures import plot_command_grid
 
     plot_command_grid(paths[3], grid, summary, pushed, f"{robot} ({sim})")
     return paths

@@ -13,7 +13,12 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
-from ptrl_jax.freeze import FREEZE_PRESETS, MODE_SEPARATOR, TRANSFER_MODES, ratio_name, variant, with_mode
+from ptrl_jax.core.freeze import (FREEZE_PRESETS, MODE_SEPARATOR, RATIO_PREFIX, TRANSFER_MODES, ratio_name, variant,
+                                  with_mode)
+
+
+class ConfigError(ValueError):
+    """A bad key, value or preset. The message names what is wrong."""
 
 
 @dataclass(frozen=True)
@@ -222,7 +227,7 @@ class TransferConfig:
     mode: str = "paper"
     """``paper``: copy the actor's L1 and L2, everything else fresh (the paper's transfer).
     ``semantic``: map the whole agent (input and output layers, log-std, normaliser, critic)
-    through the robots' declared observations and joint roles (``ptrl_jax.semantic``).
+    through the robots' declared observations and joint roles (``ptrl_jax.core.semantic``).
     ``semantic_actor``: the same, but the critic starts fresh. A variant named
     ``<preset>@<mode>`` picks its own mode."""
     joint_map: tuple[str, ...] = ()
@@ -278,7 +283,7 @@ class ExperimentConfig:
     ``auto``: ``mujoco`` where jax runs on the CPU, ``mjx`` on a GPU (docs/engines.md)."""
     devices: str = "1"
     """Local devices the program runs on: a count, or ``all``. With more than one, every stage's
-    env batch is split across them and XLA partitions the one program (``ptrl_jax/sharding.py``);
+    env batch is split across them and XLA partitions the one program (``ptrl_jax/core/sharding.py``);
     each stage's ``num_envs`` must divide by the count."""
     init_checkpoint: str = ""
     """A target checkpoint to start every transferring variant from (``python -m
@@ -295,7 +300,7 @@ class ExperimentConfig:
     """Where run folders are created."""
     tensorboard: bool = False
     """Also write the metrics as TensorBoard event files, one folder per run under
-    ``tensorboard/`` of the run folder (``ptrl_jax/tensorboard.py``), when metrics.csv is written."""
+    ``tensorboard/`` of the run folder (``ptrl_jax/io/tensorboard.py``), when metrics.csv is written."""
     progress: bool = True
     """Show a progress bar per stage (host callback; no recompilation)."""
     checkpoint: bool = True
@@ -314,12 +319,18 @@ class ExperimentConfig:
             raise ValueError(f"seeds must be >= 1, got {self.seeds}")
         if not self.freeze_presets and not self.freeze_ratio:
             raise ValueError("freeze_presets and freeze_ratio are both empty: name at least one variant")
-        bad = [p for p in self.freeze_presets if p.partition(MODE_SEPARATOR)[0] not in FREEZE_PRESETS]
-        if bad:
-            raise ValueError(f"freeze_presets: unknown {bad}; choose from {list(FREEZE_PRESETS)}, "
-                             f"optionally with {MODE_SEPARATOR}<mode>, a mode of {list(TRANSFER_MODES)}")
+        bad = []
         for p in self.freeze_presets:
-            variant(p)  # a bad mode suffix names itself
+            try:
+                variant(p)
+            except ValueError as e:
+                if p.partition(MODE_SEPARATOR)[1]:
+                    raise  # a known base with a bad mode suffix: its message names the mode
+                bad.append(p)
+        if bad:
+            raise ValueError(f"freeze_presets: unknown {bad}; choose from {list(FREEZE_PRESETS)} or "
+                             f"{RATIO_PREFIX}<r> with r in [0, 1], optionally with {MODE_SEPARATOR}<mode>, "
+                             f"a mode of {list(TRANSFER_MODES)}")
         from envs.mujoco_engine import ENGINE_CHOICES
 
         if self.engine not in ENGINE_CHOICES:

@@ -24,7 +24,7 @@ import functools
 import json
 import sys
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 import jax
 import jax.numpy as jnp
@@ -33,12 +33,12 @@ import numpy as np
 import envs
 from envs.quadruped import QuadrupedEnv
 from ptrl_jax import command_grid
-from ptrl_jax.artifacts import CheckpointError, load_checkpoint
+from ptrl_jax.io.artifacts import CheckpointError, load_checkpoint
 from ptrl_jax.config import NetworkConfig
-from ptrl_jax.figures import FIG6_SCHEDULE, schedule_commands
-from ptrl_jax.networks import make_policy
-from ptrl_jax.overrides import ConfigError, apply_overrides, coerce, flatten, parse_cli
-from ptrl_jax.train import normalize_obs
+from ptrl_jax.io.figures import FIG6_SCHEDULE, schedule_commands
+from ptrl_jax.core.networks import make_policy
+from ptrl_jax.io.overrides import ConfigError, apply_overrides, coerce, flatten, parse_cli
+from ptrl_jax.core.train import normalize_obs
 
 SIMS = ("mjx", "mujoco")
 
@@ -356,11 +356,11 @@ def evaluate_policy(
         write_mcap(mcap_path, rec)
     title = f"{robot} ({sim})"
     if plot_path is not None:
-        from ptrl_jax.figures import plot_velocity_tracking
+        from ptrl_jax.io.figures import plot_velocity_tracking
 
         plot_velocity_tracking(plot_path, rec, f"{title}: commanded and actual base velocity")
     if filmstrip_path is not None:
-        from ptrl_jax.figures import save_filmstrip
+        from ptrl_jax.io.figures import save_filmstrip
 
         save_filmstrip(filmstrip_path, rec, title, span_s=filmstrip_span_s)
     result = summarize(rec, robot, command, seconds, sim)
@@ -377,7 +377,7 @@ def evaluate_policy(
 
 
 def write_mcap(path: str, rec: Mapping[str, Any]) -> dict[str, int]:
-    from ptrl_jax.mcap_log import write_rollout
+    from ptrl_jax.io.mcap_log import write_rollout
 
     alive = np.asarray(rec["alive"]).astype(bool)
     return write_rollout(
@@ -419,7 +419,7 @@ def check_policy_fits_robot(path: str, params: Any, robot: str, env_cfg: Any) ->
 
 
 def type_stats(d: Mapping[str, Any]):
-    from ptrl_jax.normalization import RunningStats
+    from ptrl_jax.core.normalization import RunningStats
 
     return RunningStats(mean=jnp.asarray(d["mean"]), m2=jnp.asarray(d["m2"]), count=jnp.asarray(d["count"]))
 

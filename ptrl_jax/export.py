@@ -26,10 +26,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ptrl_jax.artifacts import CheckpointError, atomic_write_bytes
+from ptrl_jax.io.artifacts import CheckpointError, atomic_write_bytes
 from ptrl_jax.config import NetworkConfig
-from ptrl_jax.normalization import RunningStats, variance
-from ptrl_jax.overrides import ConfigError, parse_cli
+from ptrl_jax.core.normalization import RunningStats, variance
+from ptrl_jax.io.overrides import ConfigError, parse_cli
 
 EXPORT_FORMAT = 1
 NORMALIZER_CLIP = 10.0

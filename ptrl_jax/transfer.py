@@ -3,7 +3,7 @@
     python -m ptrl_jax.transfer source=runs/go2_to_xbot/<stamp>/source.npz target=a1 mode=semantic out=a1_init.npz
     python -m ptrl_jax.run exp=a1_from_scratch init_checkpoint=a1_init.npz freeze_presets=[none,scratch]
 
-``mode=semantic`` maps the whole agent through the robots' declarations (``ptrl_jax.semantic``),
+``mode=semantic`` maps the whole agent through the robots' declarations (``ptrl_jax.core.semantic``),
 ``mode=semantic_actor`` the same with a fresh critic, ``mode=paper`` copies the actor's L1 and L2
 into a fresh network (``freeze.transfer``). The
 checkpoint holds the parameters, the normaliser statistics, an all-false freeze mask and, in
@@ -25,12 +25,13 @@ import jax
 import numpy as np
 
 import envs
-from ptrl_jax import artifacts, normalization, semantic
-from ptrl_jax.artifacts import CheckpointError
+from ptrl_jax.core import normalization, semantic
+from ptrl_jax.io import artifacts
+from ptrl_jax.io.artifacts import CheckpointError
 from ptrl_jax.config import TransferConfig
-from ptrl_jax.freeze import TRANSFER_MODES, empty_mask, transfer
-from ptrl_jax.networks import init_actor_critic
-from ptrl_jax.overrides import ConfigError, coerce, parse_cli, to_dict
+from ptrl_jax.core.freeze import TRANSFER_MODES, empty_mask, transfer
+from ptrl_jax.core.networks import init_actor_critic
+from ptrl_jax.io.overrides import ConfigError, coerce, parse_cli, to_dict
 
 KEYS = ("source", "target", "mode", "out", "seed", "joint_map", "unmapped_blocks", "noise_std")
 

@@ -4,9 +4,9 @@ import os
 # module may import mujoco before `envs` sets this default.
 os.environ.setdefault("MUJOCO_GL", "egl")
 # The suite is compile-bound (small env counts, few steps): the smoke run's XLA settings
-# (ptrl_jax/xla_flags.py: about 2.5x faster XLA compiles). Set before jax creates its backend;
+# (ptrl_jax/io/xla_flags.py: about 2.5x faster XLA compiles). Set before jax creates its backend;
 # the CLI subprocesses of the resume tests inherit them.
-from ptrl_jax.xla_flags import use_fast_compile  # noqa: E402
+from ptrl_jax.io.xla_flags import use_fast_compile  # noqa: E402
 
 use_fast_compile()
 
@@ -60,7 +60,7 @@ def xbot_env():
 def smoke_run(tmp_path_factory):
     """One uninterrupted ``scale=smoke`` go2_to_xbot run, shared by the end-to-end and resume tests."""
     from ptrl_jax import run as run_cli
-    from ptrl_jax.overrides import load_experiment
+    from ptrl_jax.io.overrides import load_experiment
 
     runs = tmp_path_factory.mktemp("runs")
     cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"runs_dir={runs}", "tensorboard=true"])

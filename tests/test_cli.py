@@ -54,10 +54,14 @@ class TestWheel:
         names = zipfile.ZipFile(wheel).namelist()
         assert {"envs/assets/go2.xml", "envs/assets/xbot_l.xml", "ptrl_jax/presets/go2_to_xbot.yaml",
                 "ptrl_jax/presets/_transfer.yaml", "ptrl_jax/presets/table4.yaml"} <= set(names)
+        # every module of the checkout's packages, the core/ and io/ subpackages included
+        root_modules = {str(p.relative_to(root)) for pkg in ("ptrl_jax", "envs") for p in (root / pkg).rglob("*.py")}
+        assert "ptrl_jax/core/train.py" in root_modules and "ptrl_jax/io/resume.py" in root_modules
+        assert root_modules <= set(names), sorted(root_modules - set(names))
         assert not [n for n in names if n.startswith(("ptrl_jax/presets/", "envs/assets/")) and n.endswith(".py")]
         site = tmp_path / "site"
         zipfile.ZipFile(wheel).extractall(site)
-        probe = ("import envs, ptrl_jax.overrides as o; "
+        probe = ("import envs, ptrl_jax.io.overrides as o; "
                  "cfg = o.load_experiment('go2_to_xbot', ['scale=smoke']); env = envs.make('xbot_l'); "
                  "print(o.EXPERIMENTS_DIR, envs.base.ASSETS_DIR, cfg.target.robot, env.action_size)")
         elsewhere = tmp_path / "elsewhere"

@@ -7,7 +7,7 @@ import envs
 from envs.biped import BipedEnv
 
 from ptrl_jax import run as run_cli
-from ptrl_jax.overrides import ConfigError, load_experiment
+from ptrl_jax.io.overrides import ConfigError, load_experiment
 
 
 class TestOverrides:
@@ -28,6 +28,13 @@ class TestOverrides:
         with pytest.raises(ConfigError, match="both empty"):
             load_experiment("go2_to_xbot", ["freeze_presets=[]", "freeze_ratio=[]"])
 
+    def test_a_freeze_ratio_with_a_mode_is_a_preset_name_too(self):
+        """``rho<r>@<mode>`` names a variant in freeze_presets as it does everywhere else."""
+        cfg = load_experiment("go2_to_xbot", ["freeze_presets=[rho0.5@semantic_actor,L2,scratch]", "freeze_ratio=[]"])
+        assert cfg.variants == ("rho0.5@semantic_actor", "L2", "scratch")
+        with pytest.raises(ConfigError, match="freeze ratio must be in \\[0, 1\\], got 1.5"):
+            load_experiment("go2_to_xbot", ["freeze_presets=[rho1.5@semantic]"])
+
     @pytest.mark.parametrize("arg,message", [
         ("ppo.learning_rate=1e-3", "did you mean '(source|target).ppo.learning_rate'"),
         ("target.ppo.learnin_rate=1e-3", "did you mean 'target.ppo.learning_rate'"),
@@ -36,7 +43,8 @@ class TestOverrides:
         ("target.ppo.num_minibatches=7", "not divisible"),
         ("scale=smoke target.ppo.final_noise_iterations=3", "final_noise_iterations must lie in \\[0, ppo.num_iterations=2\\]"),
         ("source.ppo.final_noise_std=0", "final_noise_std must be > 0"),
-        ("freeze_presets=[L3]", "unknown \\['L3'\\]"),
+        ("freeze_presets=[L3]", "unknown \\['L3'\\]; choose from .* or rho<r>"),
+        ("freeze_presets=[rhoX]", "unknown \\['rhoX'\\]"),
         ("freeze_ratio=[0.5,1.5]", "freeze_ratio: \\[1.5\\] outside \\[0, 1\\]"),
         ("freeze_ratio=[0.5,0.5]", "repeat a variant"),
         ("scale=huge", "scale must be one of"),

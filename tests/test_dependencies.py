@@ -33,14 +33,22 @@ class TestDependencies:
         assert not bad, bad
 
 
+def module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+    return ".".join(parts)
+
+
 def module_graph() -> dict[str, set[str]]:
-    """Our module -> our modules it imports anywhere in its file (``from ptrl_jax import x``
-    counts as importing ``ptrl_jax.x`` when that is a module)."""
-    ours = {f"{pkg}.{p.stem}" for pkg in ("ptrl_jax", "envs") for p in (ROOT / pkg).glob("*.py") if p.stem != "__init__"}
+    """Our module -> our modules it imports anywhere in its file (``from ptrl_jax.core import x``
+    counts as importing ``ptrl_jax.core.x`` when that is a module). Packages' ``__init__`` files
+    import nothing of ours, so they are left out."""
+    paths = {module_name(p): p for pkg in ("ptrl_jax", "envs") for p in (ROOT / pkg).rglob("*.py")
+             if p.name != "__init__.py"}
+    ours = set(paths)
     graph: dict[str, set[str]] = {}
-    for name in ours:
-        pkg, mod = name.split(".")
-        tree = ast.parse((ROOT / pkg / f"{mod}.py").read_text())
+    for name, path in paths.items():
+        tree = ast.parse(path.read_text())
         deps = set()
         for node in ast.walk(tree):
             if isinstance(node, ast.Import):
@@ -51,6 +59,27 @@ def module_graph() -> dict[str, set[str]]:
                 deps |= {f"{node.module}.{a.name}" for a in node.names if f"{node.module}.{a.name}" in ours}
         graph[name] = deps - {name}
     return graph
+
+
+def layer(module: str) -> int:
+    """0: envs; 1: the jitted core and the shared config; 2: the host-side edges (ptrl_jax.io);
+    3: the commands and their drivers (ptrl_jax.run, evaluate, export, transfer, batch, ...)."""
+    if module.startswith("envs"):
+        return 0
+    if module.startswith("ptrl_jax.core.") or module == "ptrl_jax.config":
+        return 1
+    if module.startswith("ptrl_jax.io."):
+        return 2
+    return 3
+
+
+def test_dependencies_point_from_the_edges_to_the_core():
+    """The folders show the architecture: the core imports no edge and no command, an edge no
+    command (lazy imports in function bodies count too)."""
+    graph = module_graph()
+    assert {"ptrl_jax.core.train", "ptrl_jax.io.artifacts", "ptrl_jax.run"} <= set(graph)
+    upward = sorted(f"{m} imports {d}" for m, deps in graph.items() for d in deps if layer(d) > layer(m))
+    assert not upward, upward
 
 
 def test_no_import_cycle():

@@ -1,4 +1,4 @@
-"""The program over several devices (issue 22, ``ptrl_jax/sharding.py``): the ``devices=``
+"""The program over several devices (issue 22, ``ptrl_jax/core/sharding.py``): the ``devices=``
 value and env counts refused before compiling, and a run on two CPU devices (a subprocess that
 sees two: ``--xla_force_host_platform_device_count=2``) against the same run on one, and resumed."""
 
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from ptrl_jax import run as run_cli
-from ptrl_jax import sharding
-from ptrl_jax.overrides import ConfigError, load_experiment
+from ptrl_jax.core import sharding
+from ptrl_jax.io.overrides import ConfigError, load_experiment
 
 ROOT = Path(__file__).resolve().parents[1]
 

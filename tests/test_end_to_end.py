@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from ptrl_jax import artifacts
+from ptrl_jax.io import artifacts
 
 # One xdist worker runs every test of the shared smoke run (tests/conftest.py: smoke_run).
 pytestmark = pytest.mark.xdist_group("smoke_go2_to_xbot")

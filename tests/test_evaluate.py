@@ -5,9 +5,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from ptrl_jax import evaluate, normalization
+from ptrl_jax import evaluate
+from ptrl_jax.core import normalization
 from ptrl_jax.config import NetworkConfig
-from ptrl_jax.networks import init_actor_critic, policy_apply
+from ptrl_jax.core.networks import init_actor_critic, policy_apply
 
 OBS, PRIV, ACT = 45, 53, 12
 NET = NetworkConfig(actor_hidden=(32, 16, 8), critic_hidden=(8,), init_noise_std=0.3)

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 import envs
-from ptrl_jax import export, normalization
-from ptrl_jax.artifacts import save_checkpoint
+from ptrl_jax import export
+from ptrl_jax.core import normalization
+from ptrl_jax.io.artifacts import save_checkpoint
 from ptrl_jax.config import NetworkConfig
-from ptrl_jax.freeze import empty_mask
-from ptrl_jax.networks import init_actor_critic, policy_apply
-from ptrl_jax.train import normalize_obs
+from ptrl_jax.core.freeze import empty_mask
+from ptrl_jax.core.networks import init_actor_critic, policy_apply
+from ptrl_jax.core.train import normalize_obs
 
 OBS, PRIV, ACT = 45, 53, 12
 NET = NetworkConfig(actor_hidden=(32, 16, 8), critic_hidden=(8,))

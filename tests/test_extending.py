@@ -87,7 +87,7 @@ class TestANinthRobotFromTheGuide:
         assert float(np.min(height)) > toy.config.termination_height
 
     def test_the_semantic_map_from_go2_is_the_identity(self, toy):
-        from ptrl_jax import semantic
+        from ptrl_jax.core import semantic
 
         m = semantic.build_map(envs.make("go2"), toy)
         assert np.array_equal(m.joint_source, np.arange(12)) and np.all(np.abs(m.joint_factor) > 0)

@@ -6,10 +6,10 @@ import pytest
 
 import envs
 from ptrl_jax.evaluate import parse_schedule, rollout_mjx
-from ptrl_jax.figures import (FIG6_SCHEDULE, frame_steps, plot_velocity_tracking, render_frames, save_filmstrip,
+from ptrl_jax.io.figures import (FIG6_SCHEDULE, frame_steps, plot_velocity_tracking, render_frames, save_filmstrip,
                               schedule_commands)
-from ptrl_jax import summary
-from ptrl_jax.overrides import ConfigError
+from ptrl_jax.io import summary
+from ptrl_jax.io.overrides import ConfigError
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -5,9 +5,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ptrl_jax.config import NetworkConfig
-from ptrl_jax.freeze import FREEZE_PRESETS, count_frozen, frozen_fraction, masked, preset_mask, variant
-from ptrl_jax.networks import init_actor_critic
-from ptrl_jax.optim import AdamState, apply_updates, chain, clip_by_global_norm, global_norm, scale_by_adam
+from ptrl_jax.core.freeze import FREEZE_PRESETS, count_frozen, frozen_fraction, masked, preset_mask, variant
+from ptrl_jax.core.networks import init_actor_critic
+from ptrl_jax.core.optim import AdamState, apply_updates, chain, clip_by_global_norm, global_norm, scale_by_adam
 
 NET = NetworkConfig(actor_hidden=(16, 8, 4), critic_hidden=(8, 8, 8))
 
@@ -114,7 +114,7 @@ class TestMaskedAdam:
             seen["norm"] = global_norm(grads)
             return grads, state
 
-        from ptrl_jax.optim import Optimizer
+        from ptrl_jax.core.optim import Optimizer
 
         opt = masked(chain(Optimizer(lambda p: (), spy_update), clip_by_global_norm(1.0)), frozen)
         d, _ = opt.update({"a": jnp.array([100.0]), "b": jnp.array([0.5])}, opt.init(params), params)

@@ -3,7 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 
-from ptrl_jax.losses import compute_gae
+from ptrl_jax.core.losses import compute_gae
 
 
 def gae_loop(rewards, values, next_values, term, trunc, gamma, lam):

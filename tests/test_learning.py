@@ -9,8 +9,8 @@ import pytest
 from brax.envs.base import State
 
 from ptrl_jax.config import NetworkConfig, PPOConfig
-from ptrl_jax.freeze import empty_mask
-from ptrl_jax.train import make_train
+from ptrl_jax.core.freeze import empty_mask
+from ptrl_jax.core.train import make_train
 
 
 @dataclasses.dataclass(frozen=True)

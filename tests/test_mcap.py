@@ -5,7 +5,7 @@ from collections import Counter
 import numpy as np
 
 import envs
-from ptrl_jax.mcap_log import read_messages, write_rollout
+from ptrl_jax.io.mcap_log import read_messages, write_rollout
 
 
 def short_rollout(steps=12):
@@ -71,7 +71,7 @@ class TestFoxgloveLayout:
         import re
         from pathlib import Path
 
-        from ptrl_jax.mcap_log import TOPICS
+        from ptrl_jax.io.mcap_log import TOPICS
 
         text = (Path(__file__).resolve().parents[1] / "experiments" / "foxglove_layout.json").read_text()
         layout = json.loads(text)

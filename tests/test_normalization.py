@@ -1,7 +1,7 @@
 import jax.numpy as jnp
 import numpy as np
 
-from ptrl_jax import normalization
+from ptrl_jax.core import normalization
 
 
 class TestRunningStats:

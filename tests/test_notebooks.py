@@ -13,7 +13,7 @@ import matplotlib
 import numpy as np
 import pytest
 
-from ptrl_jax import artifacts
+from ptrl_jax.io import artifacts
 
 pytestmark = pytest.mark.xdist_group("smoke_go2_to_xbot")
 

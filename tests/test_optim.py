@@ -5,7 +5,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from ptrl_jax.optim import (
+from ptrl_jax.core.optim import (
     adaptive_kl_learning_rate, apply_updates, chain, clip_by_global_norm, global_norm, scale_by_adam,
 )
 

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import envs
-from ptrl_jax import artifacts
+from ptrl_jax.io import artifacts
 from ptrl_jax import run as run_cli
-from ptrl_jax.overrides import load_experiment
+from ptrl_jax.io.overrides import load_experiment
 
 PRESETS = ("none", "L1", "L2", "L1+L2", "scratch")
 

@@ -5,8 +5,8 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from ptrl_jax import distributions
-from ptrl_jax.losses import LossInputs, ppo_loss
+from ptrl_jax.core import distributions
+from ptrl_jax.core.losses import LossInputs, ppo_loss
 
 
 class TestPPOLoss:

@@ -14,10 +14,12 @@ import jax
 import numpy as np
 import pytest
 
-from ptrl_jax import artifacts, run as run_cli
-from ptrl_jax.artifacts import CheckpointError
+from ptrl_jax import run as run_cli
+from ptrl_jax.io import artifacts
+from ptrl_jax.io.artifacts import CheckpointError
 from ptrl_jax.evaluate import policy_from_checkpoint
-from ptrl_jax.overrides import ConfigError
+from ptrl_jax.io.overrides import ConfigError
+from ptrl_jax.io.resume import RESUME_STATE, runtime_fingerprint
 
 # One xdist worker runs every test of the shared smoke run (tests/conftest.py: smoke_run).
 pytestmark = pytest.mark.xdist_group("smoke_go2_to_xbot")
@@ -46,7 +48,7 @@ def start_cli(args: list[str]) -> subprocess.Popen:
 def wait_for_saved_state(runs_dir: Path, proc: subprocess.Popen, timeout_s: float = 600, exp: str = "go2_to_xbot") -> Path:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        found = list(runs_dir.glob(f"{exp}/*/{run_cli.RESUME_STATE}"))
+        found = list(runs_dir.glob(f"{exp}/*/{RESUME_STATE}"))
         if found:
             return found[0].parent
         if proc.poll() is not None:
@@ -71,7 +73,7 @@ class TestKillAndResume:
         proc.kill()  # SIGKILL: no handler runs
         proc.wait()
         assert not (run_dir / "report.md").exists(), "the run finished before it was killed"
-        saved_at = artifacts.read_state_meta(run_dir / run_cli.RESUME_STATE)["source_iteration"]
+        saved_at = artifacts.read_state_meta(run_dir / RESUME_STATE)["source_iteration"]
 
         result = run_cli.resume(run_dir, show_progress=False)
         assert not result["interrupted"]
@@ -82,7 +84,7 @@ class TestKillAndResume:
             for key in ref.files:
                 if key != "meta":
                     assert np.array_equal(ref[key], got[key]), (ckpt.name, key)  # bitwise
-        assert not (run_dir / run_cli.RESUME_STATE).exists()  # finished: state removed
+        assert not (run_dir / RESUME_STATE).exists()  # finished: state removed
 
 
 def kill_resume_and_compare(tmp_path: Path, args: list[str], exp: str, timeout_s: float = 900) -> list[str]:
@@ -146,17 +148,17 @@ class TestKillAndResumeCpuShaped:
 class TestResumeUnderAnotherRuntime:
     def test_is_refused_naming_the_difference(self, tmp_path):
         (tmp_path / "config.yaml").write_text("name: go2_to_xbot\nscale: smoke\n")
-        runtime = {**run_cli.runtime_fingerprint(run_cli.build_config({"scale": "smoke"})), "xla_flags": "--xla_other=1",
+        runtime = {**runtime_fingerprint(run_cli.build_config({"scale": "smoke"})), "xla_flags": "--xla_other=1",
                    "jax": "0.0.1"}
-        artifacts.save_state(tmp_path / run_cli.RESUME_STATE, {"x": np.zeros(1)}, {"runtime": runtime})
+        artifacts.save_state(tmp_path / RESUME_STATE, {"x": np.zeros(1)}, {"runtime": runtime})
         with pytest.raises(ConfigError, match=r"another runtime.*jax: saved '0.0.1'.*xla_flags: saved '--xla_other=1'"):
             run_cli.resume(tmp_path)
         assert run_cli.main([f"resume={tmp_path}"]) == 2
 
     def test_a_resumed_process_takes_the_saved_xla_flags(self, tmp_path, monkeypatch):
-        from ptrl_jax.xla_flags import configure_from_argv
+        from ptrl_jax.io.xla_flags import configure_from_argv
 
-        artifacts.save_state(tmp_path / run_cli.RESUME_STATE, {"x": np.zeros(1)},
+        artifacts.save_state(tmp_path / RESUME_STATE, {"x": np.zeros(1)},
                              {"runtime": {"xla_flags": "--xla_backend_optimization_level=0"}})
         monkeypatch.delenv("XLA_FLAGS", raising=False)
         configure_from_argv([f"resume={tmp_path}"])
@@ -176,7 +178,7 @@ class TestCtrlC:
         def interrupt_when_saved():
             deadline = time.monotonic() + 600
             while time.monotonic() < deadline:
-                if list(tmp_path.glob(f"go2_to_xbot/*/{run_cli.RESUME_STATE}")):
+                if list(tmp_path.glob(f"go2_to_xbot/*/{RESUME_STATE}")):
                     os.kill(os.getpid(), signal.SIGINT)
                     return
                 time.sleep(0.005)
@@ -190,7 +192,7 @@ class TestCtrlC:
         run_dir = result["run_dir"]
         assert run_cli._report_result(result) == 130
         assert f"resume with: python -m ptrl_jax.run resume={run_dir}" in capsys.readouterr().err
-        meta = artifacts.read_state_meta(run_dir / run_cli.RESUME_STATE)
+        meta = artifacts.read_state_meta(run_dir / RESUME_STATE)
         assert meta["target_iteration"] < cfg.target.ppo.num_iterations
         assert not (run_dir / "report.md").exists() and not (run_dir / "metrics.csv").exists()
         assert signal.getsignal(signal.SIGINT) == handler_before  # our handler is gone again

@@ -18,10 +18,10 @@ import pytest
 
 import envs
 from envs import semantics
-from ptrl_jax import normalization, semantic
+from ptrl_jax.core import normalization, semantic
 from ptrl_jax.config import NetworkConfig
-from ptrl_jax.networks import init_actor_critic, policy_apply, value_apply
-from ptrl_jax.train import normalize_obs
+from ptrl_jax.core.networks import init_actor_critic, policy_apply, value_apply
+from ptrl_jax.core.train import normalize_obs
 
 XBOT_NEWEST = 14 * 47  # first entry of the newest of XBot-L's 15 stacked frames
 
@@ -229,7 +229,7 @@ class TestOverridesAndRefusals:
 
 class TestVariantNames:
     def test_mode_suffixes(self):
-        from ptrl_jax.freeze import variant, with_mode
+        from ptrl_jax.core.freeze import variant, with_mode
 
         assert variant("L2@semantic").mode_index == 2 and variant("L2").mode_index == 1
         assert variant("L2@semantic_actor").mode_index == 3 and variant("L2@semantic_actor").frozen == ("L2",)
@@ -242,7 +242,7 @@ class TestVariantNames:
             variant("scratch@semantic")
 
     def test_transfer_semantic_names_the_variants(self):
-        from ptrl_jax.overrides import load_experiment
+        from ptrl_jax.io.overrides import load_experiment
 
         cfg = load_experiment("go2_to_xbot", ["scale=smoke", "transfer=semantic", "freeze_presets=[L2,none@paper,scratch]",
                                               "freeze_ratio=[0.5]"])
@@ -253,10 +253,11 @@ class TestVariantNames:
 @pytest.mark.xdist_group("smoke_go2_to_xbot")  # uses the smoke run of test_end_to_end
 class TestTransferTool:
     def test_writes_a_checkpoint_that_a_run_accepts(self, smoke_run, tmp_path, capsys):
-        from ptrl_jax import artifacts, transfer
-        from ptrl_jax.overrides import load_experiment
-        from ptrl_jax.program import make_program
-        from ptrl_jax.run import load_init_target
+        from ptrl_jax import transfer
+        from ptrl_jax.io import artifacts
+        from ptrl_jax.io.overrides import load_experiment
+        from ptrl_jax.core.program import make_program
+        from ptrl_jax.io.checkpoints import load_init_target
 
         _, run_dir = smoke_run
         out = tmp_path / "xbot_init.npz"
@@ -282,10 +283,11 @@ class TestTransferTool:
     def test_semantic_actor_variants_start_from_the_mapped_actor_and_a_fresh_critic(self, smoke_run, tmp_path):
         """In the program: L2@semantic_actor's actor and normaliser are L2@semantic's, its critic
         is the paper variant's (fresh from the same seed key), and the tool writes the same."""
-        from ptrl_jax import artifacts, transfer
-        from ptrl_jax.overrides import load_experiment
-        from ptrl_jax.program import make_program
-        from ptrl_jax.run import load_source_params
+        from ptrl_jax import transfer
+        from ptrl_jax.io import artifacts
+        from ptrl_jax.io.overrides import load_experiment
+        from ptrl_jax.core.program import make_program
+        from ptrl_jax.io.checkpoints import load_source_params
 
         _, run_dir = smoke_run
         src = run_dir / "source.npz"

@@ -6,11 +6,12 @@ import jax
 import numpy as np
 import pytest
 
-from ptrl_jax import artifacts
-from ptrl_jax.artifacts import CheckpointError
-from ptrl_jax.overrides import load_experiment
-from ptrl_jax.program import ProgramOutput, make_program
-from ptrl_jax.run import Progress, load_source_params, save_checkpoints
+from ptrl_jax.io import artifacts
+from ptrl_jax.io.artifacts import CheckpointError
+from ptrl_jax.io.overrides import load_experiment
+from ptrl_jax.core.program import ProgramOutput, make_program
+from ptrl_jax.io.checkpoints import load_source_params, save_checkpoints
+from ptrl_jax.io.progress import Progress
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from ptrl_jax.tensorboard import write_events
+from ptrl_jax.io.tensorboard import write_events
 
 
 def read_scalars(folder: Path) -> dict[str, list[tuple[int, float, float]]]:
@@ -44,6 +44,6 @@ class TestTensorBoard:
         assert read_scalars(tmp_path / "source_go2_source_seed0")["episode_reward"][0][:2] == (64, 3.0)
 
     def test_the_config_key(self):
-        from ptrl_jax.overrides import build_config
+        from ptrl_jax.io.overrides import build_config
 
         assert build_config({"tensorboard": "true"}).tensorboard is True

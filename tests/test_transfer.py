@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from ptrl_jax.config import NetworkConfig
-from ptrl_jax.freeze import transfer
-from ptrl_jax.networks import init_actor_critic
+from ptrl_jax.core.freeze import transfer
+from ptrl_jax.core.networks import init_actor_critic
 
 NET = NetworkConfig(actor_hidden=(16, 8, 4), critic_hidden=(8, 8, 8))
 

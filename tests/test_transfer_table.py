@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from ptrl_jax import artifacts, transfer_table
+from ptrl_jax.io import artifacts, transfer_table
 from ptrl_jax.batch import batch_configs, run_batch
-from ptrl_jax.overrides import ConfigError, load_experiment
+from ptrl_jax.io.overrides import ConfigError, load_experiment
 
 STEPS = [100, 200, 300, 400, 500]
 WALL = [1.0, 2.0, 3.0, 4.0, 5.0]
@@ -132,7 +132,7 @@ class TestThresholdMetric:
         assert by_tracking["transfer_final_reward"] == pytest.approx(4.0)  # finals stay episode rewards
 
     def test_report_summary_reads_the_metric(self):
-        from ptrl_jax import summary
+        from ptrl_jax.io import summary
 
         curves = summary.curves_by_preset(self.rows(), "episode_reward/tracking_lin_vel")
         table, threshold = summary.preset_summary(curves, 0.8, 2)
@@ -239,7 +239,7 @@ class TestRatioTable:
                 "seeds_reaching_threshold": 0, "seeds": 1}
 
     def test_presets_stand_in_for_the_ends(self):
-        from ptrl_jax.summary import format_ratio_table, ratio_table
+        from ptrl_jax.io.summary import format_ratio_table, ratio_table
 
         table = [self.row("none", 1.0), self.row("L1+L2", 2.0), self.row("scratch", 3.0), self.row("rho0.5", 4.0)]
         rows = ratio_table(table)
@@ -248,7 +248,7 @@ class TestRatioTable:
         assert "| 0 (none) | 1.000" in text and "| 0.5 | 4.000" in text and "| 1 (L1+L2) | 2.000" in text
 
     def test_a_listed_end_is_not_doubled_and_no_ratios_means_no_table(self):
-        from ptrl_jax.summary import ratio_table
+        from ptrl_jax.io.summary import ratio_table
 
         assert [r["preset"] for r in ratio_table([self.row("none", 1.0), self.row("rho0", 1.5)])] == ["rho0"]
         assert ratio_table([self.row("none", 1.0), self.row("L2", 2.0)]) == []

@@ -6,9 +6,10 @@ import pytest
 
 import envs
 from envs.biped import BipedEnv
-from ptrl_jax import artifacts, batch, walking_table
+from ptrl_jax import batch
+from ptrl_jax.io import artifacts, walking_table
 from ptrl_jax.batch import batch_configs, run_batch
-from ptrl_jax.overrides import ConfigError, load_experiment
+from ptrl_jax.io.overrides import ConfigError, load_experiment
 
 
 class TestFromScratchPresets:

@@ -14,7 +14,8 @@ from pathlib import Path
 import jax
 
 from ptrl_jax import run as run_cli
-from ptrl_jax.overrides import load_experiment
+from ptrl_jax.io.overrides import load_experiment
+from ptrl_jax.io.resume import RESUME_STATE
 
 
 def config(out: Path, devices: str):
@@ -26,7 +27,7 @@ def config(out: Path, devices: str):
 def interrupt_when_saved(folder: Path) -> None:
     deadline = time.monotonic() + 600
     while time.monotonic() < deadline:
-        if list(folder.glob(f"*/*/{run_cli.RESUME_STATE}")):
+        if list(folder.glob(f"*/*/{RESUME_STATE}")):
             os.kill(os.getpid(), signal.SIGINT)
             return
         time.sleep(0.002)

@@ -23,7 +23,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from ptrl_jax.overrides import ConfigError
+from ptrl_jax.config import ConfigError
 
 AXIS = "envs"
 """The mesh axis the env batch is split over."""

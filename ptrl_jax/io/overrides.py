@@ -19,20 +19,17 @@ from typing import Any, Iterable, Mapping
 import yaml
 
 import envs
-from ptrl_jax.config import SCALES, ExperimentConfig, StageConfig
+from ptrl_jax.config import SCALES, ConfigError, ExperimentConfig, StageConfig
 
 def _experiments_dir() -> Path:
     """The experiment presets: ``ptrl_jax/presets/`` in an installed wheel (pyproject.toml ships
     experiments/*.yaml there), else the checkout's ``experiments/``."""
-    packaged = Path(__file__).resolve().parent / "presets"
-    return packaged if packaged.is_dir() else Path(__file__).resolve().parents[1] / "experiments"
+    package = Path(__file__).resolve().parents[1]  # ptrl_jax/
+    packaged = package / "presets"
+    return packaged if packaged.is_dir() else package.parent / "experiments"
 
 
 EXPERIMENTS_DIR = _experiments_dir()
-
-
-class ConfigError(ValueError):
-    """A bad key, value or preset. The message names what is wrong."""
 
 
 def valid_keys(obj: Any, prefix: str = "") -> list[str]:

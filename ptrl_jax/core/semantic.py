@@ -39,8 +39,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from envs import semantics
-from ptrl_jax import normalization
-from ptrl_jax.types import Params
+from ptrl_jax.core import normalization
+from ptrl_jax.core.types import Params
 
 UNMAPPED_OUTPUT_SCALE = 0.01
 """Fresh output columns of joints with no counterpart start at this share of their init."""
@@ -98,7 +98,7 @@ def limb_map(source_env, target_env) -> dict[str, str]:
         return {limb: limb for limb in target_limbs}
     if fam not in LIMB_MAPS:
         raise ValueError(f"no limb map from the {fam[0]} family to the {fam[1]} family; add one to "
-                         f"ptrl_jax.semantic.LIMB_MAPS or give transfer.joint_map")
+                         f"ptrl_jax.core.semantic.LIMB_MAPS or give transfer.joint_map")
     return dict(LIMB_MAPS[fam])
 
 

@@ -17,19 +17,19 @@ import jax
 import jax.numpy as jnp
 
 from envs.base import StepInfo
-from ptrl_jax import distributions, normalization
+from ptrl_jax.core import distributions, normalization
 from ptrl_jax.config import NetworkConfig, PPOConfig, PPOHparams
-from ptrl_jax.freeze import masked
-from ptrl_jax.losses import LossInputs, compute_gae, ppo_loss
-from ptrl_jax.networks import init_actor_critic, policy_apply, value_apply
-from ptrl_jax.optim import (
+from ptrl_jax.core.freeze import masked
+from ptrl_jax.core.losses import LossInputs, compute_gae, ppo_loss
+from ptrl_jax.core.networks import init_actor_critic, policy_apply, value_apply
+from ptrl_jax.core.optim import (
     adaptive_kl_learning_rate,
     apply_updates,
     chain,
     clip_by_global_norm,
     scale_by_adam,
 )
-from ptrl_jax.types import Mask, Observation, Params, PRNGKey, Transition
+from ptrl_jax.core.types import Mask, Observation, Params, PRNGKey, Transition
 
 ProgressFn = Callable[[dict], None]
 

@@ -29,10 +29,10 @@ import jax.numpy as jnp
 
 import envs
 from envs.mujoco_engine import resolve_engine
-from ptrl_jax import normalization, semantic
+from ptrl_jax.core import normalization, semantic
 from ptrl_jax.config import ExperimentConfig
-from ptrl_jax.freeze import empty_mask, preset_mask, transfer, variant
-from ptrl_jax.train import ProgressFn, Trainer, TrainState, make_train
+from ptrl_jax.core.freeze import empty_mask, preset_mask, transfer, variant
+from ptrl_jax.core.train import ProgressFn, Trainer, TrainState, make_train
 
 
 class ProgramState(NamedTuple):

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ptrl_jax import distributions
+from ptrl_jax.core import distributions
 
 
 def compute_gae(

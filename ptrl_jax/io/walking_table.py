@@ -14,7 +14,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ptrl_jax.summary import curves_by_preset, fmt_number
+from ptrl_jax.io.summary import curves_by_preset, fmt_number
 
 FIELDS = (
     "experiment", "robot", "seed", "iterations", "env_steps", "compile_s", "train_s", "final_reward",
@@ -32,7 +32,7 @@ GRID_FIELDS = ("experiment", "robot", "seed", "sim", "cells", "error_vx", "error
 
 
 def scratch_checkpoint(run_dir: Path, robot: str, seed: int, multi_target: bool) -> Path:
-    """The file ``run.save_outputs`` writes for a scratch run (``target_[<robot>_]scratch_seed<k>.npz``)."""
+    """The file ``outputs.save_outputs`` writes for a scratch run (``target_[<robot>_]scratch_seed<k>.npz``)."""
     return Path(run_dir) / (f"target_{robot}_scratch_seed{seed}.npz" if multi_target else f"target_scratch_seed{seed}.npz")
 
 

@@ -12,7 +12,7 @@ from typing import Callable, Sequence
 import jax
 import jax.numpy as jnp
 
-from ptrl_jax.types import Params, PRNGKey
+from ptrl_jax.core.types import Params, PRNGKey
 
 ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
     "elu": jax.nn.elu,

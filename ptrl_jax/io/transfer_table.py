@@ -11,7 +11,7 @@ from finished runs. The rule, per target robot of an experiment:
 - saved = 1 - transfer / scratch, per seed (seeds are paired: same initialisation of the
   non-transferred layers and same env stream), then mean and std over the seeds where both
   reached the threshold;
-- the same for the semantic transfer (``ptrl_jax/semantic.py``): its best variant among those
+- the same for the semantic transfer (``ptrl_jax/core/semantic.py``): its best variant among those
   named ``<preset>@semantic`` or ``<preset>@semantic_actor`` in the run, by mean env steps to
   the threshold (the choice is named in the row, and made on the same seeds it is reported on).
 
@@ -27,8 +27,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ptrl_jax.freeze import MODE_SEPARATOR
-from ptrl_jax.summary import curves_by_preset, fmt_number
+from ptrl_jax.core.freeze import MODE_SEPARATOR
+from ptrl_jax.io.summary import curves_by_preset, fmt_number
 
 PAPER_AVERAGE_SAVING = 0.20
 """Paper Table IV: training with transfer took about 20 % less time on average (Isaac Gym,

@@ -80,7 +80,7 @@ def ratio_table(summary: Sequence[Mapping[str, Any]], mode: str = "paper") -> li
     of a preset summary, with ``rho``, sorted by it. The presets 'none' and 'L1+L2' (of the same
     mode) are the ends rho = 0 and rho = 1 (the same masks), and stand in for them when the sweep
     does not list them itself. Empty without any ratio variant of that mode."""
-    from ptrl_jax.freeze import MODE_SEPARATOR, RATIO_PREFIX
+    from ptrl_jax.core.freeze import MODE_SEPARATOR, RATIO_PREFIX
 
     suffix = "" if mode == "paper" else MODE_SEPARATOR + mode
 

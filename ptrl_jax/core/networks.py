@@ -20,10 +20,10 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ptrl_jax import distributions
+from ptrl_jax.core import distributions
 from ptrl_jax.config import NetworkConfig
-from ptrl_jax.nn import mlp_apply, mlp_init
-from ptrl_jax.types import Observation, Params, PRNGKey
+from ptrl_jax.core.nn import mlp_apply, mlp_init
+from ptrl_jax.core.types import Observation, Params, PRNGKey
 
 
 class PolicyOutput(NamedTuple):

@@ -19,7 +19,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ptrl_jax.types import Params
+from ptrl_jax.core.types import Params
 
 OptState = Any
 Updates = Any

@@ -22,8 +22,8 @@ from typing import Mapping
 import jax
 import jax.numpy as jnp
 
-from ptrl_jax.optim import Optimizer
-from ptrl_jax.types import Mask, Params
+from ptrl_jax.core.optim import Optimizer
+from ptrl_jax.core.types import Mask, Params
 
 # The paper's transferable hidden layers, by name (rsl_rl's actor.2 and actor.4).
 HIDDEN_LAYERS: dict[str, str] = {"L1": "layer_1", "L2": "layer_2"}
@@ -32,7 +32,7 @@ HIDDEN_LAYERS: dict[str, str] = {"L1": "layer_1", "L2": "layer_2"}
 TRANSFER_MODES = ("paper", "semantic", "semantic_actor")
 """How a transferring variant initialises the target: ``paper`` copies the actor's L1 and L2
 (``transfer`` below); ``semantic`` maps the whole agent through the robots' declarations
-(``ptrl_jax.semantic``); ``semantic_actor`` maps the actor, its log-std and the normaliser the
+(``ptrl_jax.core.semantic``); ``semantic_actor`` maps the actor, its log-std and the normaliser the
 same way but starts the critic fresh, as the paper does (a critic's values are in the source's
 reward scale and dynamics, which the target may not share; docs/table4.md)."""
 MODE_SEPARATOR = "@"
