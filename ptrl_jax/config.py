@@ -21,6 +21,10 @@ class ConfigError(ValueError):
     """A bad key, value or preset. The message names what is wrong."""
 
 
+THRESHOLD_CURVES = ("episode_reward", "step_reward")
+"""The logged curves ``report.threshold_metric`` may name, whole or one reward term of them."""
+
+
 @dataclass(frozen=True)
 class NetworkConfig:
     """Actor and critic MLPs (paper Fig. 3: 512-256-128, ELU)."""
@@ -197,7 +201,10 @@ class ReportConfig:
     """The logged curve that time-to-threshold reads: ``episode_reward`` (the paper's measure), or
     one reward term, ``episode_reward/<term>``. ``episode_reward/tracking_lin_vel`` is earned
     only by following the velocity command, so a policy that stands cannot reach its threshold
-    (docs/table4.md: on A1, standing earns 90 % of a walking policy's episode reward)."""
+    (docs/table4.md: on A1, standing earns 90 % of a walking policy's episode reward). The
+    episode curves move only as episodes end, which once envs survive whole episodes is every
+    ``episode_length / unroll_length`` iterations; ``step_reward`` and ``step_reward/<term>``
+    (the reward, or one term, per env step of each rollout) move every iteration."""
     final_window: int = 10
     """'Final reward' is the mean over this many last iterations."""
     zero_shot_check: bool = True
@@ -208,9 +215,10 @@ class ReportConfig:
     """Length of each zero-shot check rollout, s (the walking check's own 20 s by default)."""
 
     def __post_init__(self):
-        if self.threshold_metric != "episode_reward" and not self.threshold_metric.startswith("episode_reward/"):
-            raise ValueError(f"report.threshold_metric must be 'episode_reward' or 'episode_reward/<reward term>', "
-                             f"got {self.threshold_metric!r}")
+        base, _, term = self.threshold_metric.partition("/")
+        if base not in THRESHOLD_CURVES or (not term and "/" in self.threshold_metric):
+            raise ValueError(f"report.threshold_metric must be one of {list(THRESHOLD_CURVES)}, optionally "
+                             f"with /<reward term> (episode_reward/tracking_lin_vel), got {self.threshold_metric!r}")
         if not 0.0 < self.threshold_fraction <= 1.5:
             raise ValueError(f"report.threshold_fraction must be in (0, 1.5], got {self.threshold_fraction}")
         if self.final_window < 1:

@@ -70,13 +70,13 @@ _PROGRAMS: dict[tuple, tuple] = {}
 def check_threshold_metric(metric: str, reward_terms: dict[str, tuple[str, ...]]) -> None:
     """Refuse a ``report.threshold_metric`` reward term that a target robot does not log
     (``reward_terms``: robot -> its reward terms), naming the nearest one."""
-    if metric == "episode_reward":
+    curve, _, term = metric.partition("/")
+    if not term:
         return
-    term = metric.split("/", 1)[1]
     for robot, terms in reward_terms.items():
         if term not in terms:
             near = difflib.get_close_matches(term, list(terms), n=1, cutoff=0.4)
-            hint = f"; did you mean 'episode_reward/{near[0]}'?" if near else ""
+            hint = f"; did you mean '{curve}/{near[0]}'?" if near else ""
             raise ConfigError(f"report.threshold_metric={metric!r}: {robot} has no reward term {term!r} "
                               f"(its terms: {', '.join(terms)}){hint}")
 

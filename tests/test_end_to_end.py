@@ -40,7 +40,8 @@ class TestSmokeRunOutputs:
         assert len(rows) == n_src + len(VARIANTS) * cfg.seeds * n_tgt
         cols = set(rows[0])
         for c in ("stage", "preset", "seed", "iteration", "env_steps", "wall_time_s", "episode_reward",
-                  "episode_length", "kl", "learning_rate", "noise_std", "episode_reward/tracking_lin_vel", "episode_reward/joint_pos"):
+                  "episode_length", "kl", "learning_rate", "noise_std", "episode_reward/tracking_lin_vel", "episode_reward/joint_pos",
+                  "step_reward/tracking_lin_vel", "step_reward/joint_pos"):
             assert c in cols, c
         for r in rows:
             assert np.isfinite(float(r["wall_time_s"])) and np.isfinite(float(r["kl"]))

@@ -86,6 +86,35 @@ class TestPPOLearns:
         assert np.all(np.asarray(metrics["skipped_updates"]) == 0)
 
 
+class PointMassWithAliveTerm(PointMass):
+    """PointMass with a second reward term, a constant 0.25 per step."""
+
+    reward_names = ("distance", "alive")
+
+    def reset(self, key):
+        state = super().reset(key)
+        return state.replace(metrics={**state.metrics, "reward/alive": jnp.zeros(())})
+
+    def step(self, state, action):
+        nxt = super().step(state, action)
+        alive = jnp.float32(0.25)
+        return nxt.replace(reward=nxt.reward + alive, metrics={**nxt.metrics, "reward/alive": alive})
+
+
+class TestPerStepTermMetrics:
+    def test_each_term_per_env_step_of_the_rollout(self):
+        """``step_reward/<term>``: the term's mean over every env and step of the iteration's
+        rollout, so the constant term reads its constant and the terms add up to ``step_reward``."""
+        ppo = dataclasses.replace(PPO, num_iterations=3)
+        trainer = make_train(PointMassWithAliveTerm(), ppo, NET)
+        params = trainer.init_params(jax.random.PRNGKey(0))
+        _, metrics = jax.jit(trainer.train)(jax.random.PRNGKey(1), ppo.hparams(), empty_mask(params), params)
+        np.testing.assert_array_equal(np.asarray(metrics["step_reward/alive"]), np.float32(0.25))
+        total = np.asarray(metrics["step_reward/distance"]) + np.asarray(metrics["step_reward/alive"])
+        np.testing.assert_allclose(total, np.asarray(metrics["step_reward"]), rtol=1e-5)
+        assert np.all(np.asarray(metrics["step_reward/distance"]) > 0)  # exp(-|x|^2): positive
+
+
 class TestNoRecompilation:
     def test_iterations_reuse_one_compiled_program(self):
         trainer = make_train(PointMass(), dataclasses.replace(PPO, num_iterations=1), NET)

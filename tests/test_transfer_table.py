@@ -145,8 +145,10 @@ class TestThresholdMetric:
     def test_a_metric_that_is_not_a_reward_curve_is_refused(self):
         from ptrl_jax.config import ReportConfig
 
-        with pytest.raises(ValueError, match="threshold_metric must be"):
-            ReportConfig(threshold_metric="tracking_lin_vel")
+        for bad in ("tracking_lin_vel", "episode_reward/", "loss/value"):
+            with pytest.raises(ValueError, match="threshold_metric must be one of \\['episode_reward', 'step_reward'\\]"):
+                ReportConfig(threshold_metric=bad)
+        ReportConfig(threshold_metric="step_reward/tracking_lin_vel")  # the per-step curve of a term
 
     def test_an_unknown_reward_term_is_refused_with_the_nearest(self):
         from ptrl_jax.run import check_threshold_metric
@@ -154,6 +156,8 @@ class TestThresholdMetric:
         with pytest.raises(ConfigError, match="a1 has no reward term 'tracking_lin_vell'.*tracking_lin_vel'"):
             check_threshold_metric("episode_reward/tracking_lin_vell", {"a1": ("tracking_lin_vel", "torques")})
         check_threshold_metric("episode_reward/torques", {"a1": ("tracking_lin_vel", "torques")})  # a known term passes
+        with pytest.raises(ConfigError, match="did you mean 'step_reward/tracking_lin_vel'"):
+            check_threshold_metric("step_reward/tracking_lin_vell", {"a1": ("tracking_lin_vel", "torques")})
 
 
 class TestBatchConfigs:

@@ -287,6 +287,9 @@ def make_train(
             "noise_std": jnp.mean(jnp.exp(state.params["log_std"])),  # the std this iteration acted with
             "nonfinite_states": jnp.sum(extras["nonfinite"]),
             **{f"episode_{k}": ep_mean(v) for k, v in episodes.last_terms.items()},
+            # Each term per env step over this rollout: unlike the episode terms, which change only
+            # as episodes end (every 1,000 steps once envs survive), it moves every iteration.
+            **{f"step_{k}": jnp.mean(v) for k, v in extras["terms"].items()},
             **{k: jnp.mean(v) for k, v in sgd_metrics.items()},
         }
         metrics["skipped_updates"] = jnp.sum(sgd_metrics["skipped_updates"])
