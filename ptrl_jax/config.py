@@ -331,7 +331,7 @@ class ExperimentConfig:
         for p in self.freeze_presets:
             try:
                 variant(p)
-            except ValueError as e:
+            except ValueError:
                 if p.partition(MODE_SEPARATOR)[1]:
                     raise  # a known base with a bad mode suffix: its message names the mode
                 bad.append(p)
