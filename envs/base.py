@@ -22,6 +22,7 @@ Families (quadruped, biped) subclass this and supply observations and reward ter
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, NamedTuple
@@ -246,6 +247,20 @@ class LeggedEnv(PipelineEnv):
                             if config.joint_roles else ())
         self.joint_signs = (semantics.joint_axis_signs(mj_model, self.joint_roles)
                             if self.joint_roles else None)
+
+    @functools.cached_property
+    def joint_flexion_signs(self):
+        """Per actuated joint: ``joint_signs``, except that a knee gets its flexion direction in
+        its own coordinates (``semantics.knee_flexion_signs``); None without joint roles."""
+        if not self.joint_roles:
+            return None
+        return semantics.knee_flexion_signs(self.mj_model, self.joint_roles, self.joint_signs,
+                                            self.declared_flexion())
+
+    def declared_flexion(self) -> dict[int, float]:
+        """Joint index -> the sign in which the family says that joint flexes (used for knees
+        that are straight at home). None declared by default."""
+        return {}
 
     @property
     def reward_names(self) -> tuple[str, ...]:

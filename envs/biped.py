@@ -271,6 +271,11 @@ class BipedEnv(LeggedEnv):
         ]
         return {"state": state, "privileged_state": privileged}
 
+    def declared_flexion(self) -> dict[int, float]:
+        """The reference gait's swing sign of each swing joint: the direction it flexes to lift the
+        foot (a straight home knee's flexion direction, ``semantics.knee_flexion_signs``)."""
+        return {int(j): float(s) for j, s in zip(self.config.swing_joints, self.config.swing_signs)}
+
     def __init__(self, config: BipedConfig, **kwargs):
         super().__init__(config, **kwargs)
         m = self.mj_model

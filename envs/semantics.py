@@ -17,6 +17,12 @@ The physical convention
   pitch, tarsus). The sign of a joint is the sign of its axis along that canonical axis, read
   from the model (``joint_axis_signs``), so a positive canonical angle is the same physical
   rotation on every robot: +y rotation swings a foot backwards, +x moves a left foot outwards.
+- The **knee convention** differs. A knee can bend either way: Go2's knees and ANYmal's front
+  knees point backwards, ANYmal's hind knees and every biped's point forwards, so the same +y
+  rotation flexes one and extends the other. ``knee_flexion_signs`` therefore also gives each
+  knee's *flexion* direction (the sign of its bent home angle, or the family's declared swing
+  direction where the home knee is straight), so a transfer can map flexion to flexion
+  (``transfer.knee=flexion``) instead of rotation to rotation (``transfer.knee=axis``).
 - A joint role is ``"<limb>:<kind>"``. Limbs: ``FL FR RL RR`` (quadrupeds: front/rear,
   left/right) and ``L R`` (bipeds). Kinds: see ``JOINT_KINDS``.
 """
@@ -42,6 +48,16 @@ JOINT_KINDS: dict[str, tuple[float, float, float]] = {
     "ankle_roll": (1.0, 0.0, 0.0),
 }
 """Joint kinds and their canonical axes in the base frame (the sign convention)."""
+
+FLEXION_KINDS = ("knee",)
+"""Kinds whose flexion direction depends on which way the joint points (see the module text)."""
+
+STRAIGHT_KNEE = 0.05
+"""A home knee angle under this (rad) counts as straight: its flexion direction is not read
+from the pose but from the family's declaration."""
+
+KNEE_CONVENTIONS = ("axis", "flexion")
+"""How a semantic transfer signs knees: by axis (the canonical rotation) or by flexion."""
 
 JOINT_QUANTITIES = ("joint_pos", "joint_vel", "last_action", "joint_ref_err")
 """Per-joint quantities: an entry's ``index`` is the joint's position in the action vector."""
@@ -131,3 +147,35 @@ def joint_axis_signs(model: mujoco.MjModel, roles: tuple[JointRole, ...]) -> np.
                              f"{np.round(axis, 2).tolist()} is not along {JOINT_KINDS[role.kind]}")
         signs.append(1.0 if along > 0 else -1.0)
     return np.asarray(signs)
+
+
+def knee_flexion_signs(model: mujoco.MjModel, roles: tuple[JointRole, ...], axis_signs: np.ndarray,
+                       declared: dict[int, float] | None = None) -> np.ndarray:
+    """+1 or -1 per actuated joint, in the joint's own coordinates: for a knee, the direction in
+    which it flexes; for every other joint, its axis sign (``joint_axis_signs``), unchanged.
+
+    A knee bent at home (|angle| >= ``STRAIGHT_KNEE``) flexes further the way it is bent. A knee
+    straight at home takes ``declared[j]``, the family's own statement (a biped's reference-gait
+    swing sign). A knee with neither, or whose declaration contradicts its bent home pose, is an
+    error naming it."""
+    declared = declared or {}
+    home = model.key("home").qpos
+    signs = np.asarray(axis_signs, float).copy()
+    for j, role in enumerate(roles):
+        if role.kind not in FLEXION_KINDS:
+            continue
+        name = model.joint(j + 1).name
+        angle = float(home[model.jnt_qposadr[j + 1]])
+        said = declared.get(j)
+        if abs(angle) >= STRAIGHT_KNEE:
+            signs[j] = 1.0 if angle > 0 else -1.0
+            if said is not None and np.sign(said) != signs[j]:
+                raise ValueError(f"knee {name!r} is bent {angle:+.2f} rad at home, but its family declares it "
+                                 f"flexes {'+' if said > 0 else '-'} (reference-gait swing sign)")
+        elif said is not None and said != 0:
+            signs[j] = 1.0 if said > 0 else -1.0
+        else:
+            raise ValueError(f"knee {name!r} is straight at home ({angle:+.2f} rad) and its family declares "
+                             f"no flexion direction for it; bend it in the home key or declare one "
+                             f"(LeggedEnv.declared_flexion)")
+    return signs

@@ -13,6 +13,7 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
+from envs.semantics import KNEE_CONVENTIONS
 from ptrl_jax.core.freeze import (FREEZE_PRESETS, MODE_SEPARATOR, RATIO_PREFIX, TRANSFER_MODES, ratio_name, variant,
                                   with_mode)
 
@@ -244,6 +245,12 @@ class TransferConfig:
     unmapped_blocks: tuple[str, ...] = ()
     """Target observation blocks (``foot_contact``, ``base_height``, ...) left unmapped by semantic
     transfers: their input weights start at zero."""
+    knee: str = "axis"
+    """How semantic transfers sign knees. ``axis``: by their axes, so a mapped knee turns the
+    same way (Go2's knee flexion arrives as extension on a knee that points the other way, as on
+    ANYmal's hind legs, XBot-L and TRON1... see docs/transfer.md). ``flexion``: by their flexion
+    directions, so a knee flexes where its source's flexes (``envs.semantics.knee_flexion_signs``).
+    Where two knees point the same way the two agree."""
     noise_std: float = 0.0
     """The policy std semantic transfers start from: 0 carries the source's (per joint, scaled
     like its action); a positive value starts every joint's std there instead. A source trained
@@ -253,6 +260,8 @@ class TransferConfig:
     def __post_init__(self):
         if self.mode not in TRANSFER_MODES:
             raise ValueError(f"transfer.mode must be one of {list(TRANSFER_MODES)}, got {self.mode!r}")
+        if self.knee not in KNEE_CONVENTIONS:
+            raise ValueError(f"transfer.knee must be one of {list(KNEE_CONVENTIONS)}, got {self.knee!r}")
         if self.noise_std < 0:
             raise ValueError(f"transfer.noise_std must be >= 0 (0 carries the source's std), got {self.noise_std}")
 

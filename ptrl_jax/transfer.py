@@ -11,8 +11,8 @@ its metadata, the map (each target joint's source joint and factor, the matched 
 entries), so a transfer can be inspected, evaluated (``ptrl_jax.evaluate ckpt=...``: the
 zero-shot policy) or fine-tuned with any settings (``init_checkpoint=``). Optional keys:
 ``seed=K`` (the fresh initialisation of what is not transferred), ``joint_map=[t:s,...]``,
-``unmapped_blocks=[...]`` and ``noise_std=S`` as ``transfer.joint_map`` /
-``transfer.unmapped_blocks`` / ``transfer.noise_std`` of a run.
+``unmapped_blocks=[...]``, ``knee=axis|flexion`` and ``noise_std=S`` as ``transfer.joint_map`` /
+``transfer.unmapped_blocks`` / ``transfer.knee`` / ``transfer.noise_std`` of a run.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from ptrl_jax.core.freeze import TRANSFER_MODES, empty_mask, transfer
 from ptrl_jax.core.networks import init_actor_critic
 from ptrl_jax.io.overrides import ConfigError, coerce, parse_cli, to_dict
 
-KEYS = ("source", "target", "mode", "out", "seed", "joint_map", "unmapped_blocks", "noise_std")
+KEYS = ("source", "target", "mode", "out", "seed", "joint_map", "unmapped_blocks", "knee", "noise_std")
 
 
 def transfer_policy(policy: dict[str, Any], target_robot: str, mode: str = "semantic", seed: int = 0,
@@ -62,12 +62,13 @@ def transfer_policy(policy: dict[str, Any], target_robot: str, mode: str = "sema
         meta["transfer"] = {"mode": "paper", "copied": ["actor/layer_1", "actor/layer_2"]}
     else:
         try:
-            tmap = semantic.build_map(source_env, target_env, transfer_cfg.joint_map, transfer_cfg.unmapped_blocks)
+            tmap = semantic.build_map(source_env, target_env, transfer_cfg.joint_map, transfer_cfg.unmapped_blocks,
+                                      transfer_cfg.knee)
         except ValueError as e:
             raise ConfigError(str(e)) from None
         params, norm = semantic.apply(tmap, policy["params"], policy["normalizer"], fresh, fresh_norm,
                                       transfer_cfg.noise_std, critic=mode == "semantic")
-        meta["transfer"] = {"mode": mode, "noise_std": transfer_cfg.noise_std,
+        meta["transfer"] = {"mode": mode, "noise_std": transfer_cfg.noise_std, "knee": transfer_cfg.knee,
                             "critic": "mapped" if mode == "semantic" else "fresh", **tmap.describe()}
     to_np = lambda t: jax.tree.map(np.asarray, t)  # noqa: E731
     return {"params": to_np(params), "normalizer": to_np(norm), "meta": meta}
@@ -97,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
             mode=mode if mode in TRANSFER_MODES else "paper",
             joint_map=coerce(args.get("joint_map", ()), tuple[str, ...], "joint_map"),
             unmapped_blocks=coerce(args.get("unmapped_blocks", ()), tuple[str, ...], "unmapped_blocks"),
+            knee=str(args.get("knee", TransferConfig.knee)),
             noise_std=coerce(args.get("noise_std", 0.0), float, "noise_std"))
         policy = policy_from_checkpoint(args["source"])
         result = transfer_policy(policy, args["target"], mode, coerce(args.get("seed", 0), int, "seed"), transfer_cfg)

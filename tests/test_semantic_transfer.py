@@ -227,6 +227,82 @@ class TestOverridesAndRefusals:
             semantic.build_map(robots["go2"], bare)
 
 
+class TestKneeConvention:
+    """transfer.knee=flexion signs knees by the way they bend: Go2's calves bend backwards (home
+    -1.8 rad), ANYmal's front knees too (-0.8) but its hind knees forwards (+0.8); XBot-L's knees
+    are straight at home, so their flexion is the reference gait's swing sign."""
+
+    def test_flexion_signs_read_the_home_pose(self, robots):
+        go2, anymal = robots["go2"], envs.make("anymal_c")
+        knees = [i for i, r in enumerate(go2.joint_roles) if r.kind == "knee"]
+        assert knees == [2, 5, 8, 11]
+        assert (go2.joint_flexion_signs[knees] == -1.0).all()
+        assert anymal.joint_flexion_signs[knees].tolist() == [-1.0, -1.0, 1.0, 1.0]
+        others = [i for i in range(12) if i not in knees]
+        assert np.array_equal(anymal.joint_flexion_signs[others], anymal.joint_signs[others])
+
+    def test_a_straight_knee_takes_the_declared_swing_sign(self, robots):
+        x = robots["xbot_l"]
+        left, right = x.joint_names.index("left_knee_joint"), x.joint_names.index("right_knee_joint")
+        # XBot-L's reference gait lifts the left foot with a negative knee angle, the right with a positive one.
+        assert x.joint_flexion_signs[left] == -1.0 and x.joint_flexion_signs[right] == 1.0
+
+    def test_hind_knees_of_anymal_flip_under_flexion(self, robots):
+        anymal = envs.make("anymal_c")
+        axis = semantic.build_map(robots["go2"], anymal, knee="axis")
+        flex = semantic.build_map(robots["go2"], anymal, knee="flexion")
+        expected = np.full(12, 0.5)  # action scales 0.25 / 0.5
+        np.testing.assert_array_equal(axis.joint_factor, expected)
+        expected[[8, 11]] = -0.5  # RL_calf, RR_calf
+        np.testing.assert_array_equal(flex.joint_factor, expected)
+        # The hind knees' position, velocity and last-action inputs flip with them (state entries
+        # 6 + 8, 18 + 8, 33 + 8); the front knee's do not.
+        for entry in (14, 26, 41, 17, 29, 44):
+            assert flex.obs["state"].weight[entry] == -1.0 and axis.obs["state"].weight[entry] == 1.0
+        for entry in (8, 20, 35):
+            assert flex.obs["state"].weight[entry] == 1.0
+
+    def test_the_conventions_agree_where_knees_bend_the_same_way(self, robots):
+        pairs = [("go2", "a1"), ("xbot_l", "cassie"), ("xbot_l", "mit_humanoid"), ("cassie", "xbot_l")]
+        for s, t in pairs:
+            src, tgt = envs.make(s), envs.make(t)
+            a, f = semantic.build_map(src, tgt, knee="axis"), semantic.build_map(src, tgt, knee="flexion")
+            np.testing.assert_array_equal(a.joint_factor, f.joint_factor, err_msg=f"{s} -> {t}")
+
+    def test_tron1_and_go2_knees_flex_against_xbot_l_axes(self, robots):
+        # TRON1's and Go2's knees bend backwards, XBot-L's forwards: the axis map extends where the
+        # source flexes, the flexion map flexes.
+        for s, t in (("xbot_l", "tron1"), ("go2", "xbot_l")):
+            src, tgt = robots[s], robots[t]
+            a, f = semantic.build_map(src, tgt, knee="axis"), semantic.build_map(src, tgt, knee="flexion")
+            knees = [j for j, r in enumerate(tgt.joint_roles) if r.kind == "knee"]
+            assert (np.sign(a.joint_factor[knees]) == -np.sign(f.joint_factor[knees])).all(), (s, t)
+            for j in knees:  # flexion of the target = flexion of the source times |factor|
+                sj = f.joint_source[j]
+                assert tgt.joint_flexion_signs[j] * f.joint_factor[j] * src.joint_flexion_signs[sj] > 0
+
+    def test_a_straight_undeclared_knee_is_refused_naming_it(self):
+        from envs.base import LeggedEnv
+
+        x = envs.make("xbot_l")
+        with pytest.raises(ValueError, match="knee 'left_knee_joint' is straight at home"):
+            semantics.knee_flexion_signs(x.mj_model, x.joint_roles, x.joint_signs, {})
+        assert LeggedEnv.declared_flexion(x) == {}
+
+    def test_a_declaration_against_the_bent_pose_is_refused(self):
+        a = envs.make("anymal_c")
+        with pytest.raises(ValueError, match="knee 'RL_calf_joint' is bent \\+0.80 rad at home"):
+            semantics.knee_flexion_signs(a.mj_model, a.joint_roles, a.joint_signs, {8: -1.0})
+
+    def test_an_unknown_convention_is_refused(self, robots):
+        from ptrl_jax.config import TransferConfig
+
+        with pytest.raises(ValueError, match="transfer.knee must be one of \\['axis', 'flexion'\\], got 'bent'"):
+            TransferConfig(knee="bent")
+        with pytest.raises(ValueError, match="transfer.knee must be one of"):
+            semantic.build_map(robots["go2"], robots["a1"], knee="bent")
+
+
 class TestVariantNames:
     def test_mode_suffixes(self):
         from ptrl_jax.core.freeze import variant, with_mode

@@ -128,7 +128,8 @@ def make_program(
     n_seeds = cfg.seeds
     n_source, n_target = cfg.source_iterations, cfg.target.ppo.num_iterations
     # Built before anything compiles: a joint map naming a joint that does not exist fails here.
-    transfer_maps = ({r: semantic.build_map(source_env, e, cfg.transfer.joint_map, cfg.transfer.unmapped_blocks)
+    transfer_maps = ({r: semantic.build_map(source_env, e, cfg.transfer.joint_map, cfg.transfer.unmapped_blocks,
+                                            cfg.transfer.knee)
                       for r, e in target_envs.items()} if cfg.semantic else {})
     modes = [variant(p).mode_index for p in presets]  # 0 scratch, 1 paper, 2 semantic, 3 semantic_actor
 

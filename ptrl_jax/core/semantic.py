@@ -9,6 +9,9 @@ projection of the target's observation. This one maps instead, from the envs' de
   limb (``LIMB_MAPS``); ``TransferConfig.joint_map`` overrides any pair. The factor between them
   is the product of their axis signs times the ratio of action scales, so a mapped action asks
   for the same physical rotation, about the same canonical axis, of the joint's target angle.
+  With ``knee="flexion"`` a knee pair's sign is the product of their flexion directions
+  instead, so a knee that points the other way (ANYmal's hind knees from Go2's) flexes where
+  its source flexes rather than extending.
 - **Observation entries.** A target entry takes the source entry of the same quantity and
   component (joints and feet through the joint and limb maps; stacked frames by age). Its raw
   value relates to the source's by ``factor`` (signs and scales); entries without a counterpart
@@ -113,10 +116,15 @@ def _require_roles(env, which: str) -> None:
                          f"transfer cannot map its joints (envs.semantics; LocomotionConfig.joint_roles)")
 
 
-def joint_correspondence(source_env, target_env, joint_map: tuple[str, ...] = ()) -> tuple[np.ndarray, np.ndarray, dict]:
+def joint_correspondence(source_env, target_env, joint_map: tuple[str, ...] = (),
+                         knee: str = "axis") -> tuple[np.ndarray, np.ndarray, dict]:
     """(source joint per target joint or -1, sign per target joint, limb map). ``joint_map``
     entries ``"<target joint>:<source joint>"`` override the role-based pairs; a source name
-    prefixed with ``-`` flips the sign again, and ``none`` leaves the target joint unmapped."""
+    prefixed with ``-`` flips the sign again, and ``none`` leaves the target joint unmapped.
+    ``knee="axis"`` signs knees by their axes (the same rotation), ``"flexion"`` by their flexion
+    directions (flexion maps to flexion; ``envs.semantics.knee_flexion_signs``)."""
+    if knee not in semantics.KNEE_CONVENTIONS:
+        raise ValueError(f"transfer.knee must be one of {list(semantics.KNEE_CONVENTIONS)}, got {knee!r}")
     _require_roles(source_env, "source")
     _require_roles(target_env, "target")
     limbs = limb_map(source_env, target_env)
@@ -146,7 +154,8 @@ def joint_correspondence(source_env, target_env, joint_map: tuple[str, ...] = ()
                              f"{', '.join(source_env.joint_names)})")
         src[j] = source_env.joint_names.index(src_name)
         extra_sign[j] = -1.0 if flip else 1.0
-    sign = np.where(src >= 0, target_env.joint_signs * source_env.joint_signs[np.maximum(src, 0)], 1.0)
+    signs = (lambda e: e.joint_flexion_signs) if knee == "flexion" else (lambda e: e.joint_signs)
+    sign = np.where(src >= 0, signs(target_env) * signs(source_env)[np.maximum(src, 0)], 1.0)
     return src, sign * extra_sign, limbs
 
 
@@ -164,10 +173,11 @@ def _entry_key(entry: semantics.ObsEntry, joints: np.ndarray | None, limbs: dict
     return entry.quantity, index, entry.frame
 
 
-def build_map(source_env, target_env, joint_map: tuple[str, ...] = (), unmapped_blocks: tuple[str, ...] = ()) -> TransferMap:
+def build_map(source_env, target_env, joint_map: tuple[str, ...] = (), unmapped_blocks: tuple[str, ...] = (),
+              knee: str = "axis") -> TransferMap:
     """The semantic correspondence of two envs (see the module docstring). Refusals name the
-    joint or block that does not exist."""
-    joint_src, joint_sign, limbs = joint_correspondence(source_env, target_env, joint_map)
+    joint or block that does not exist. ``knee``: how knees are signed (``joint_correspondence``)."""
+    joint_src, joint_sign, limbs = joint_correspondence(source_env, target_env, joint_map, knee)
     scale_ratio = source_env.config.action_scale / target_env.config.action_scale
     joint_factor = np.where(joint_src >= 0, joint_sign * scale_ratio, 1.0)
     src_blocks, tgt_blocks = source_env.observation_blocks(), target_env.observation_blocks()
