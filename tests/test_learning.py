@@ -180,20 +180,26 @@ class TestClosingNoise:
         assert not any(np.any(np.asarray(m)) for m in jax.tree.leaves(states[-1].frozen))
 
 
-@pytest.mark.xdist_group("engine_mujoco_learning")
-class TestMujocoCEngine:
-    """engine=mujoco inside the trainer: the host callback is part of one compiled iteration."""
+# MuJoCo C's engine inside the trainer (MJX's is the go2_to_xbot smoke program's, whose kill -9
+# and resume tests/test_resume.py checks).
+@pytest.mark.parametrize("engine", [pytest.param("mujoco", marks=pytest.mark.xdist_group("engine_mujoco_learning")),
+                                    pytest.param("mjx", marks=pytest.mark.slow)])
+class TestEngineInsideTheTrainer:
+    """Each physics engine inside the trainer (MuJoCo C: the host callback is part of the one
+    compiled iteration): no recompiles, same seed same metrics, and a state written to a resume
+    file and read back continues bitwise, the physics state (warm start included) with it."""
 
-    def test_no_recompiles_and_same_seed_same_metrics(self):
+    def test_no_recompiles_same_seed_and_a_saved_state_continues_bitwise(self, engine, tmp_path):
         import envs
+        from ptrl_jax.io import artifacts
 
-        env = envs.make("go2", dataclasses.replace(envs.default_config("go2"), engine="mujoco"))
+        env = envs.make("go2", dataclasses.replace(envs.default_config("go2"), engine=engine))
         ppo = dataclasses.replace(PPO, num_envs=8, unroll_length=4, num_minibatches=2, num_iterations=1)
         trainer = make_train(env, ppo, NET)
         params = trainer.init_params(jax.random.PRNGKey(0))
         init = jax.jit(trainer.init)
         iteration = jax.jit(trainer.iteration)
-        runs = []
+        runs, states = [], []
         for _ in range(2):
             state = init(jax.random.PRNGKey(1), ppo.hparams(), empty_mask(params), params)
             metrics = []
@@ -201,8 +207,20 @@ class TestMujocoCEngine:
                 state, m = iteration(state)
                 metrics.append(jax.device_get(m))
             runs.append(metrics)
+            states.append(state)
         assert iteration._cache_size() == 1
         for a, b in zip(*runs):
             for k in a:
                 assert np.array_equal(a[k], b[k]), k
         assert runs[0][-1]["env_steps"] == 3 * 8 * 4 and np.isfinite(runs[0][-1]["loss/total"])
+
+        # Through the resume file: save after 3 iterations, load into the state's structure, run a
+        # 4th; it equals a 4th run on the state kept in memory.
+        artifacts.save_state(tmp_path / "state.npz", states[0], {"test": engine})
+        loaded, meta = artifacts.load_state(tmp_path / "state.npz", jax.eval_shape(lambda: states[0]))
+        assert meta["test"] == engine
+        (a, ma), (b, mb) = iteration(states[1]), iteration(loaded)
+        for k in ma:
+            assert np.array_equal(np.asarray(ma[k]), np.asarray(mb[k])), k
+        same = jax.tree.map(lambda x, y: np.array_equal(np.asarray(x), np.asarray(y)), a, b)
+        assert all(jax.tree.leaves(same))

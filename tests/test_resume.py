@@ -115,8 +115,10 @@ def kill_resume_and_compare(tmp_path: Path, args: list[str], exp: str, timeout_s
 
 
 # Slow (about 2 min of one core): the suite keeps MuJoCo C's resume through
-# tests/test_devices.py's sharded run (SIGINT, then resume in the same process, bitwise) and kill -9 through the MJX
-# test above; this one is both at once.
+# tests/test_devices.py's sharded run (SIGINT, then resume in the same process, bitwise) and
+# tests/test_learning.py's saved state continued bitwise, and kill -9 through the MJX test above
+# (whose resume runs in the test's process: a second CLI process would trace the program again,
+# about 2 min); this one is both at once, with the resume a new process as a user types it.
 @pytest.mark.slow
 @pytest.mark.xdist_group("engine_mujoco_resume")
 class TestKillAndResumeWithMujocoC:
