@@ -1,5 +1,7 @@
 """The Gymnasium view on MuJoCo C: API conformance, rendering, and agreement with the MJX env."""
 
+import dataclasses
+
 import gymnasium
 import jax
 import jax.numpy as jnp
@@ -55,9 +57,10 @@ class TestFixedCommand:
             env.step(np.zeros(3, np.float32))
 
 
-def mjx_state_like(gym_env):
-    """An MJX env state holding exactly the MuJoCo C env's current state."""
-    e = gym_env.mjx_env
+def state_like(gym_env, env=None):
+    """A state of the JAX env ``env`` (default: the Gymnasium view's own MJX env) holding exactly
+    the MuJoCo C env's current state. Both engines keep their physics in an ``mjx.Data``."""
+    e = env or gym_env.mjx_env
     data = mjx.make_data(e.sys).replace(
         qpos=jnp.asarray(gym_env.data.qpos, jnp.float32), qvel=jnp.asarray(gym_env.data.qvel, jnp.float32)
     )
@@ -67,31 +70,34 @@ def mjx_state_like(gym_env):
     return State(data, obs, jnp.zeros(()), jnp.zeros(()), {}, info)
 
 
-# One robot per family and foot type (a single-env MJX step costs about a minute to compile).
-# XBot-L's is marked slow (left out of the default run, `pytest -m slow` runs it) to keep the
-# suite within 15 minutes; Go2's stays in, and XBot-L's sim-to-sim path is also exercised by
-# `evaluate sim=mujoco`.
-@pytest.mark.parametrize("robot", ["go2", pytest.param("xbot_l", marks=pytest.mark.slow)])
+# The Gymnasium view (numpy, MuJoCo C, float64) against the trainer's JAX env stepped by the same
+# open-loop actions. Go2 against engine=mujoco (MuJoCo C too, stepped through the host callback
+# from float32 states): the view's observation and reward code against the trainer's, at the cost
+# of a MuJoCo C compile. MJX against MuJoCo C is tests/test_envs.py::TestEngines, for every robot.
+# XBot-L against MJX, marked slow (a single-env MJX step costs about a minute to compile; `pytest
+# -m slow` runs it): the view against MJX directly, box soles included.
+@pytest.mark.parametrize("robot,engine", [("go2", "mujoco"), pytest.param("xbot_l", "mjx", marks=pytest.mark.slow)])
 @pytest.mark.xdist_group("sim_to_sim")  # scheduled early with the other one-compile groups (conftest)
 class TestSimToSimAgreement:
-    """MJX (float32) and MuJoCo C (float64) step the same model with the same solver settings.
+    """The Gymnasium view and the JAX env step the same model with the same solver settings.
     Over the first 10 control steps of an open-loop action sequence they agree within these
     tolerances (rad or m for qpos; per-step, dt-weighted reward).
 
-    XBot-L's looser bound is a real engine difference, not float noise: for a box sole touching
-    the floor MJX keeps only the corners within 1 mm of the deepest one (``plane_convex``), so on
-    the same state it reported 2 contacts where MuJoCo C reported 5; the states then drift apart
-    by 3.5e-3 after one step and 3.7e-2 after ten. Go2's sphere feet have one contact each in
-    both engines and agree to 2e-3."""
+    XBot-L's looser bound against MJX is a real engine difference, not float noise: for a box
+    sole touching the floor MJX keeps only the corners within 1 mm of the deepest one
+    (``plane_convex``), so on the same state it reported 2 contacts where MuJoCo C reported 5; the
+    states then drift apart by 3.5e-3 after one step and 3.7e-2 after ten. Go2's sphere feet have
+    one contact each in both engines and agreed to 2e-3 with MJX."""
 
     QPOS_TOL = {"go2": 2e-3, "xbot_l": 5e-2}
     REWARD_TOL = {"go2": 2e-3, "xbot_l": 1e-2}
 
-    def test_first_steps_agree(self, robot):
+    def test_first_steps_agree(self, robot, engine):
         gym_env = envs.LocomotionGymEnv(robot)
         gym_env.reset(seed=3, options={"command": (0.5, 0.0, 0.0)})
-        state = mjx_state_like(gym_env)
-        step = jax.jit(gym_env.mjx_env.step)
+        env = gym_env.mjx_env if engine == "mjx" else envs.make(robot, dataclasses.replace(gym_env.config, engine=engine))
+        state = state_like(gym_env, env)
+        step = jax.jit(env.step)
         n = gym_env.action_space.shape[0]
         for t in range(10):
             action = (0.5 * np.sin(0.3 * t + np.arange(n))).astype(np.float32)

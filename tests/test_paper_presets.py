@@ -44,11 +44,11 @@ def check_transfer(run_dir, target_file_prefix, target_robot):
 # The costliest test program: one trainer per robot in one program, about 4 min of one core to
 # trace and compile with all eight (MuJoCo C's engine, AMD EPYC, 2026-12-02). The default suite
 # runs it with the target robots that no other suite program trains (Go2 and XBot-L train in the
-# go2_to_xbot smoke run, A1 in the two-device and transfer-tool tests; ANYmal B is ANYmal C's
-# env on another model, and both step in the registry walk): 5 robots. `-m slow` runs the preset
-# whole. tests/conftest.py hands this group out first, so one xdist worker builds it while the
+# go2_to_xbot smoke run, A1 in the two-device and transfer-tool tests; the ANYmals are the same
+# quadruped env on other models, and step in the registry walk and the engine test): XBot-L and
+# the three other bipeds. `-m slow` runs the preset whole. tests/conftest.py hands this group out first, so one xdist worker builds it while the
 # other runs the rest.
-SUITE_TARGETS = ("cassie", "tron1", "anymal_c")  # besides the preset's target, the MIT Humanoid
+SUITE_TARGETS = ("cassie", "tron1")  # besides the preset's target, the MIT Humanoid
 
 
 @pytest.mark.parametrize("targets", [pytest.param("suite", marks=pytest.mark.xdist_group("xbot_to_all")),
