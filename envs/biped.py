@@ -208,7 +208,10 @@ CASSIE_CONFIG = BipedConfig(
 
 # TRON1 point foot (PF_TRON1A), after tron1-rl-isaacgym pointfoot_flat_config.py (FACTS §9):
 # kp 42 / kd 2.5, action_scale 0.25, 50 Hz, feet_height_target 0.10, min_feet_distance 0.115,
-# base_height_target 0.68. No ankle: the gait swings hip and knee only. The zero pose has the
+# the source's base_height_target is 0.68, a crouch 13 cm below the stand (base 0.812 m above the
+# point feet at the zero pose), under legged_gym's squared penalty, whose gradient reaches the
+# stand. Under this family's exp(-100 |h - target|) that target paid 2e-6 at the stand, a term the
+# policy could not climb, so ours is TRON1's own stand. No ankle: the gait swings hip and knee only. The zero pose has the
 # knee bent 60 degrees, and on the left leg + on both hip and knee lifts the foot (right mirrored);
 # checked by forward kinematics: 0.17 rad gives 5.9 cm of lift, 0.25 rad about 0.1 m.
 TRON1_CONFIG = BipedConfig(
@@ -225,7 +228,7 @@ TRON1_CONFIG = BipedConfig(
     init_base_vel_noise=0.1,
     target_joint_pos_scale=0.25,
     target_feet_height=0.10,
-    base_height_target=0.68,
+    base_height_target=0.81,  # its stand, 0.812 m (tests/test_envs.py::TestBaseHeightTargets)
     min_feet_distance=0.115,  # feet 0.21 m apart at home
     max_feet_distance=0.4,
     swing_joints=(1, 2, 4, 5),

@@ -188,6 +188,33 @@ BIPEDS = [r for r in envs.robot_names() if not isinstance(envs.make(r), Quadrupe
 
 
 @pytest.mark.parametrize("robot", BIPEDS)
+class TestBaseHeightTargets:
+    """The biped base-height term, exp(-100 |h - target|) with h the base over the stance feet,
+    pays at the robot's stand: a target 13 cm off it (TRON1's source value, 0.68 m, under this
+    term) paid 2e-6 there, a term no policy could climb."""
+
+    def test_the_term_at_the_home_pose(self, robot):
+        import mujoco
+        from mujoco import mjx
+
+        env = envs.make(robot)
+        m, d = env.mj_model, mujoco.MjData(env.mj_model)
+        d.qpos[:] = m.key("home").qpos
+        mujoco.mj_kinematics(m, d)
+        stand = d.qpos[2] - np.mean([d.site_xpos[m.site(n).id][2] for n in env.config.foot_sites])
+        data = mjx.kinematics(env.sys, mjx.make_data(env.sys).replace(qpos=jnp.asarray(d.qpos, jnp.float32)))
+        info = env._fresh_info(data, jax.random.PRNGKey(0))  # step 0: gait phase 0, both feet in stance
+        terms = env._reward_terms(data, jnp.zeros(env.action_size), info, env._step_features(data, info))
+        expected = np.exp(-100.0 * abs(stand - env.config.base_height_target))
+        np.testing.assert_allclose(float(terms["base_height"]), expected, rtol=1e-4)
+        # Every biped's target lies within 7 cm of its stand (the MIT Humanoid's pbrs crouch,
+        # 0.62 under a 0.687 m stand, is the widest): the term pays at least exp(-7) there.
+        assert abs(stand - env.config.base_height_target) < 0.07, (robot, stand)
+        if robot == "tron1":
+            assert stand == pytest.approx(0.812, abs=1e-3) and float(terms["base_height"]) > 0.8
+
+
+@pytest.mark.parametrize("robot", BIPEDS)
 class TestReferenceGait:
     """The biped reference gait (envs/biped.py), checked by MuJoCo C forward kinematics at the
     peak of the left swing: the swing joints' indices and signs are per-robot configuration, and
