@@ -69,8 +69,27 @@ class CommandConfig:
     """Share of sampled commands set to exactly (0, 0, 0), yaw included, so that standing
     still under a zero command is trained on purpose (0: off, and the command stream is the
     same as without the option)."""
+    curriculum: bool = False
+    """Command curriculum, kept per env. legged_gym widens one global forward range whenever the
+    resetting envs' mean velocity-tracking kernel tops 0.8; here every env carries its own level
+    in [``curriculum_start``, 1], as legged_gym's terrain curriculum carries a terrain level, so
+    the rule stays local to the env and vmaps. Each env samples its commands from the three ranges
+    above scaled by its level. An episode that times out with a mean ``tracking_lin_vel`` kernel of
+    at least ``curriculum_threshold`` raises the level by ``curriculum_step`` (1: the full ranges);
+    a fall lowers it by the same. The trainer logs the mean level as ``step_command_level``. Off:
+    the command stream is unchanged."""
+    curriculum_start: float = 0.3
+    """The level every env starts at: its commands span this fraction of each range."""
+    curriculum_step: float = 0.1
+    """How far one episode moves an env's level."""
+    curriculum_threshold: float = 0.8
+    """The mean per-step ``tracking_lin_vel`` kernel (exp of the squared planar velocity error,
+    1 at perfect tracking) an episode must reach to raise its env's level (legged_gym's 0.8)."""
 
     def __post_init__(self):
+        for name in ("curriculum_start", "curriculum_step", "curriculum_threshold"):
+            if not 0.0 < getattr(self, name) <= 1.0:
+                raise ValueError(f"commands.{name} must lie in (0, 1], got {getattr(self, name)}")
         for name in ("lin_vel_x", "lin_vel_y", "yaw_rate"):
             lo, hi = getattr(self, name)
             if lo > hi:
@@ -242,6 +261,9 @@ class LeggedEnv(PipelineEnv):
         self._base_body = int(mj_model.jnt_bodyid[0])  # the free joint's body
         self._stepper = MujocoStepper(mj_model, self._base_body) if config.engine == "mujoco" else None
         self._reward_weights: Mapping[str, float] = dataclasses.asdict(config.rewards)  # type: ignore[attr-defined]
+        if config.commands.curriculum and "tracking_lin_vel" not in self._reward_weights:
+            raise ValueError(f"commands.curriculum reads the tracking_lin_vel reward term, which {config.asset}'s "
+                             f"rewards do not have (terms: {sorted(self._reward_weights)})")
         self.joint_names = [mj_model.joint(j).name for j in range(1, mj_model.njnt)]
         self.joint_roles = (semantics.parse_roles(config.joint_roles, self.joint_names, config.asset)
                             if config.joint_roles else ())
@@ -322,10 +344,14 @@ class LeggedEnv(PipelineEnv):
         return data.qvel[6:]
 
     # ----- commands ---------------------------------------------------------------------------
-    def sample_command(self, rng: jax.Array) -> jax.Array:
+    def sample_command(self, rng: jax.Array, level: jax.Array | float = 1.0) -> jax.Array:
+        """A command drawn from the config's ranges; with ``commands.curriculum`` the ranges are
+        scaled by ``level`` (the env's curriculum level; ignored without it)."""
         c = self.config.commands
         lo = jnp.array([c.lin_vel_x[0], c.lin_vel_y[0], c.yaw_rate[0]])
         hi = jnp.array([c.lin_vel_x[1], c.lin_vel_y[1], c.yaw_rate[1]])
+        if c.curriculum:  # static: without it the ranges are the config's as they stand
+            lo, hi = lo * level, hi * level
         cmd = jax.random.uniform(rng, (3,), minval=lo, maxval=hi)
         planar = jnp.linalg.norm(cmd[:2]) >= c.zero_below
         cmd = cmd.at[:2].multiply(planar)
@@ -345,11 +371,28 @@ class LeggedEnv(PipelineEnv):
         qvel = jnp.zeros(self.sys.nv).at[:6].set(base_vel)
         return qpos, qvel
 
-    def _fresh_info(self, data, rng: jax.Array) -> dict:
+    def next_command_level(self, level: jax.Array, tracking_sum: jax.Array, steps: jax.Array,
+                           fell: jax.Array, timed_out: jax.Array) -> jax.Array:
+        """The curriculum's rule (``CommandConfig.curriculum``) for an env whose episode just
+        ended after ``steps`` steps with ``tracking_sum`` summed ``tracking_lin_vel`` kernels:
+        up one step on a time-out that tracked well enough, down one on a fall, else unchanged;
+        clipped to [``curriculum_start``, 1]."""
+        c = self.config.commands
+        mean_tracking = tracking_sum / jnp.maximum(steps, 1)
+        up = timed_out & (mean_tracking >= c.curriculum_threshold)
+        moved = level + c.curriculum_step * (up.astype(jnp.float32) - fell.astype(jnp.float32))
+        return jnp.clip(moved, c.curriculum_start, 1.0).astype(jnp.float32)
+
+    def _fresh_info(self, data, rng: jax.Array, level: jax.Array | None = None) -> dict:
+        """A new episode's info; ``level``: the env's curriculum level (``curriculum_start``
+        when None; read only with ``commands.curriculum``)."""
         rng, k_cmd, k_family = jax.random.split(rng, 3)
+        curriculum = self.config.commands.curriculum
+        if level is None:
+            level = jnp.asarray(self.config.commands.curriculum_start, jnp.float32)
         info = {
             "rng": rng,
-            "command": self.sample_command(k_cmd),
+            "command": self.sample_command(k_cmd, level),
             "last_action": jnp.zeros(self.num_joints),
             "last_joint_vel": self.joint_vel(data),
             "step": jnp.zeros((), jnp.int32),
@@ -357,6 +400,9 @@ class LeggedEnv(PipelineEnv):
             "termination": jnp.zeros(()),
             "nonfinite": jnp.zeros(()),
         }
+        if curriculum:
+            info["command_level"] = level
+            info["tracking_sum"] = jnp.zeros(())
         if self.config.randomization.enabled:
             k_family, k_draw = jax.random.split(k_family)
             info["randomization"] = randomization.sample(self.config.randomization, k_draw)
@@ -376,6 +422,8 @@ class LeggedEnv(PipelineEnv):
         info["final_obs"] = obs
         zero = jnp.zeros(())
         metrics = {f"reward/{k}": zero for k in self._reward_weights}
+        if self.config.commands.curriculum:
+            metrics["command_level"] = info["command_level"]
         return State(data, obs, zero, zero, metrics, info)
 
     def reset_with_command(self, rng: jax.Array, command: jax.Array) -> State:
@@ -459,6 +507,9 @@ class LeggedEnv(PipelineEnv):
             reward = jnp.maximum(reward, 0.0)
         reward = jnp.where(nonfinite, 0.0, reward).astype(jnp.float32)
         metrics = {f"reward/{k}": jnp.where(nonfinite, 0.0, v) for k, v in weighted.items()}
+        if cfg.commands.curriculum:
+            metrics["command_level"] = info["command_level"]
+            info["tracking_sum"] = info["tracking_sum"] + jnp.where(nonfinite, 0.0, terms["tracking_lin_vel"])
 
         info = self._after_step_info(data, info, features)
         info["last_action"] = jnp.asarray(action, jnp.float32)
@@ -473,7 +524,8 @@ class LeggedEnv(PipelineEnv):
         rng, k_cmd, k_reset = jax.random.split(info["rng"], 3)
         info["rng"] = rng
         resample = (info["step"] % int(round(cfg.commands.resample_time_s / cfg.ctrl_dt))) == 0
-        info["command"] = jnp.where(resample, self.sample_command(k_cmd), info["command"])
+        level = info.get("command_level", 1.0)
+        info["command"] = jnp.where(resample, self.sample_command(k_cmd, level), info["command"])
         info["truncation"] = truncation.astype(jnp.float32)
         info["termination"] = termination.astype(jnp.float32)
         info["nonfinite"] = nonfinite.astype(jnp.float32)
@@ -491,7 +543,11 @@ class LeggedEnv(PipelineEnv):
             qvel=jnp.where(done, qvel0, data.qvel),
             qacc_warmstart=jnp.where(done, 0.0, data.qacc_warmstart),
         )
-        reset_info = self._fresh_info(reset_data, t.reset_key)
+        level = None
+        if self.config.commands.curriculum:  # the ended episode moves its env's level
+            level = self.next_command_level(t.info["command_level"], t.info["tracking_sum"], t.info["step"],
+                                            t.termination, t.truncation)
+        reset_info = self._fresh_info(reset_data, t.reset_key, level)
         reset_obs, reset_info = self._observe(reset_data, reset_info)
         for k in ("truncation", "termination", "nonfinite"):
             reset_info[k] = t.info[k]

@@ -279,3 +279,96 @@ class TestCommandSampling:
 
         with pytest.raises(ValueError, match=r"zero_share must lie in \[0, 1\], got 1.5"):
             dataclasses.replace(envs.default_config("go2").commands, zero_share=1.5)
+
+
+class TestCommandCurriculum:
+    """``commands.curriculum``: the per-env level rule on hand-made episodes, the ranges it
+    scales, and one stepped Go2 (MuJoCo C engine: no MJX compile) carrying its level across the
+    auto-reset."""
+
+    def env(self, engine="mjx", **commands):
+        import envs
+
+        cfg = envs.default_config("go2")
+        commands = {"curriculum": True, **commands}
+        return envs.make("go2", dataclasses.replace(cfg, engine=engine,
+                                                   commands=dataclasses.replace(cfg.commands, **commands)))
+
+    def test_the_level_rule_on_hand_made_episodes(self):
+        env = self.env(curriculum_start=0.3, curriculum_step=0.1, curriculum_threshold=0.8)
+        level = jnp.array([0.5, 0.5, 0.5, 0.5, 0.95, 0.3])
+        tracking_sum = jnp.array([850.0, 790.0, 850.0, 100.0, 900.0, 0.0])
+        steps = jnp.array([1000, 1000, 1000, 200, 1000, 40])
+        fell = jnp.array([False, False, False, True, False, True])
+        timed_out = jnp.array([True, True, False, False, True, False])
+        got = np.asarray(env.next_command_level(level, tracking_sum, steps, fell, timed_out))
+        # 0.85 on a time-out: up; 0.79: stays; 0.85 but neither fell nor timed out: stays;
+        # a fall: down; up past 1 and down past the start are clipped.
+        np.testing.assert_allclose(got, [0.6, 0.5, 0.5, 0.4, 1.0, 0.3], atol=1e-6)
+
+    def test_the_level_scales_every_range(self):
+        env = self.env(zero_below=0.0)
+        keys = jax.random.split(jax.random.PRNGKey(3), 500)
+        full = np.asarray(jax.vmap(lambda k: env.sample_command(k, 1.0))(keys))
+        half = np.asarray(jax.vmap(lambda k: env.sample_command(k, 0.5))(keys))
+        np.testing.assert_allclose(half, 0.5 * full, atol=1e-6)
+        assert np.abs(full).max(axis=0).min() > 0.9  # the draws do span the +-1 ranges
+
+    def test_off_the_level_is_ignored(self):
+        env = TestCommandSampling().env()
+        keys = jax.random.split(jax.random.PRNGKey(3), 200)
+        np.testing.assert_array_equal(np.asarray(jax.vmap(lambda k: env.sample_command(k, 0.5))(keys)),
+                                      np.asarray(jax.vmap(env.sample_command)(keys)))
+
+    def test_out_of_range_settings_are_refused(self):
+        import envs
+
+        with pytest.raises(ValueError, match=r"curriculum_step must lie in \(0, 1\], got 0.0"):
+            dataclasses.replace(envs.default_config("go2").commands, curriculum_step=0.0)
+
+    def test_a_stepped_env_moves_its_level_at_the_episode_end(self):
+        env = self.env(engine="mujoco", curriculum_start=0.3, curriculum_step=0.1)
+        step, reset = jax.jit(env.step), jax.jit(env.reset)
+        s = reset(jax.random.PRNGKey(0))
+        assert float(s.info["command_level"]) == pytest.approx(0.3)
+        assert np.all(np.abs(np.asarray(s.info["command"])) <= 0.3 + 1e-6)
+        zero = jnp.zeros(env.action_size)
+
+        mid = step(s, zero)  # mid-episode: the level holds, the kernel accumulates
+        assert float(mid.done) == 0.0 and float(mid.info["command_level"]) == pytest.approx(0.3)
+        assert 0.0 < float(mid.info["tracking_sum"]) <= 1.0
+        assert float(mid.metrics["command_level"]) == pytest.approx(0.3)
+
+        n = env.config.episode_steps
+        good = s.replace(info={**s.info, "step": jnp.asarray(n - 1, jnp.int32),
+                               "tracking_sum": jnp.asarray(0.9 * n, jnp.float32)})
+        out = step(good, zero)  # times out having tracked at >= 0.9: up one step
+        assert float(out.info["truncation"]) == 1.0
+        assert float(out.info["command_level"]) == pytest.approx(0.4)
+        assert float(out.info["tracking_sum"]) == 0.0 and int(out.info["step"]) == 0
+
+        poor = s.replace(info={**s.info, "step": jnp.asarray(n - 1, jnp.int32),
+                               "command_level": jnp.asarray(0.6, jnp.float32),
+                               "tracking_sum": jnp.asarray(0.5 * n, jnp.float32)})
+        assert float(step(poor, zero).info["command_level"]) == pytest.approx(0.6)  # stays
+
+        data = s.pipeline_state
+        fallen = s.replace(pipeline_state=data.replace(qpos=data.qpos.at[2].set(0.05)),
+                           info={**s.info, "command_level": jnp.asarray(0.6, jnp.float32)})
+        out = step(fallen, zero)
+        assert float(out.info["termination"]) == 1.0
+        assert float(out.info["command_level"]) == pytest.approx(0.5)  # a fall: down one step
+
+    def test_a_family_without_the_tracking_term_is_refused(self):
+        import envs
+
+        cfg = envs.default_config("go2")
+        bad = dataclasses.replace(cfg, commands=dataclasses.replace(cfg.commands, curriculum=True))
+
+        @dataclasses.dataclass(frozen=True)
+        class NoTracking:
+            orientation: float = -1.0
+
+        object.__setattr__(bad, "rewards", NoTracking())
+        with pytest.raises(ValueError, match="commands.curriculum reads the tracking_lin_vel reward term"):
+            envs.make("go2", bad)
