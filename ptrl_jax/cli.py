@@ -1,4 +1,4 @@
-"""The ``ptrl-jax`` console script: ``ptrl-jax run|evaluate|export|transfer key=value ...``.
+"""The ``ptrl-jax`` console script: ``ptrl-jax run|evaluate|export|transfer|table4 key=value ...``.
 
 Each command is the module of the same name, as ``python -m ptrl_jax.<command>`` runs it:
 
@@ -6,6 +6,7 @@ Each command is the module of the same name, as ``python -m ptrl_jax.<command>``
     ptrl-jax evaluate ckpt=runs/go2_to_xbot/<stamp>/source.npz check=true
     ptrl-jax export ckpt=... out=policy.onnx
     ptrl-jax transfer source=<run>/source.npz target=a1 mode=semantic out=a1_init.npz
+    ptrl-jax table4 runs=[runs/go2_to_anymal_b/<stamp>,runs/go2_to_anymal_b_axis/<stamp>]
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ COMMANDS = {
     "evaluate": ("ptrl_jax.evaluate", "play a checkpoint: walking check, sim-to-sim, figures (ckpt=PATH)"),
     "export": ("ptrl_jax.export", "write a checkpoint's policy as ONNX (ckpt=PATH out=PATH)"),
     "transfer": ("ptrl_jax.transfer", "write a target robot's transferred initial checkpoint (source= target= out=)"),
+    "table4": ("ptrl_jax.table4", "Table IV from finished runs, several programs paired by seed (runs=[DIR,...])"),
 }
 
 

@@ -12,7 +12,7 @@ class TestConsoleScript:
     def test_help_lists_every_command(self, capsys):
         assert cli.main(["--help"]) == 0
         out = capsys.readouterr().out
-        assert all(f"  {name}" in out for name in ("run", "evaluate", "export", "transfer"))
+        assert all(f"  {name}" in out for name in ("run", "evaluate", "export", "transfer", "table4"))
 
     def test_an_unknown_command_names_the_nearest(self, capsys):
         assert cli.main(["evalute", "ckpt=x"]) == 2

@@ -96,27 +96,36 @@ def _compare(scratch: Mapping[str, np.ndarray], other: Mapping[str, np.ndarray])
 
 def robot_row(
     experiment: str, source: str, target: str, rows: Sequence[Mapping[str, Any]], transfer_preset: str,
-    threshold_fraction: float, final_window: int, metric: str = "episode_reward",
+    threshold_fraction: float, final_window: int, metric: str = "episode_reward", require_transfer: bool = True,
 ) -> dict[str, Any]:
     """One Table IV row from the target rows of one robot (scratch and ``transfer_preset``
     present; the semantic columns are filled when a semantic variant ran, ``is_semantic``).
-    ``metric``: the column whose curve reaches the threshold (``report.threshold_metric``)."""
+    ``metric``: the column whose curve reaches the threshold (``report.threshold_metric``).
+    ``require_transfer=False``: a missing ``transfer_preset`` leaves the paper's columns empty
+    (``transfer_ran`` False, shown as 'not run') instead of refusing the row."""
     curves = curves_by_preset(rows, metric)
-    missing = [p for p in ("scratch", transfer_preset) if p not in curves]
+    needed = ("scratch", transfer_preset) if require_transfer else ("scratch",)
+    missing = [p for p in needed if p not in curves]
     if missing:
         raise ValueError(f"{experiment} -> {target}: no metrics for preset(s) {missing} "
-                         f"(Table IV needs 'scratch' and the transfer preset {transfer_preset!r})")
+                         f"(Table IV needs 'scratch'" + (f" and the transfer preset {transfer_preset!r})"
+                                                         if require_transfer else ")"))
     final = {name: c["reward"][:, -final_window:].mean(axis=1) for name, c in curves.items()}
     threshold = float(threshold_fraction * curves["scratch"]["metric"][:, -final_window:].mean())
+    ran = transfer_preset in curves
     out: dict[str, Any] = {
         "experiment": experiment, "source": source, "target": target, "transfer_preset": transfer_preset,
+        "transfer_ran": ran,
         "seeds": int(curves["scratch"]["reward"].shape[0]), "threshold": threshold, "threshold_metric": metric,
         "scratch_final_reward": float(final["scratch"].mean()),
-        "transfer_final_reward": float(final[transfer_preset].mean())}
+        "transfer_final_reward": float(final[transfer_preset].mean()) if ran else float("nan")}
     times = {name: _time_to(c, threshold) for name, c in curves.items()}
     out["scratch_steps_mean"], out["scratch_steps_std"] = _stats(times["scratch"]["steps"])
     out["scratch_wall_s_mean"] = _stats(times["scratch"]["wall"])[0]
-    paper = _compare(times["scratch"], times[transfer_preset])
+    nan = float("nan")
+    paper = (_compare(times["scratch"], times[transfer_preset]) if ran else
+             {"steps_mean": nan, "steps_std": nan, "wall_s_mean": nan, "steps_saved_mean": nan,
+              "steps_saved_std": nan, "wall_saved_mean": nan, "wall_saved_std": nan, "seeds_both_reached": 0})
     out.update({"transfer_steps_mean": paper["steps_mean"], "transfer_steps_std": paper["steps_std"],
                 "transfer_wall_s_mean": paper["wall_s_mean"],
                 **{k: paper[k] for k in ("steps_saved_mean", "steps_saved_std", "wall_saved_mean",
@@ -156,7 +165,7 @@ def average_row(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     wall = [r["wall_saved_mean"] for r in rows]
     s_mean, s_std = _stats(steps)
     w_mean, w_std = _stats(wall)
-    out = {"experiment": "average", "target": f"{sum(np.isfinite(steps))} of {len(rows)} robots",
+    out = {"experiment": "average", "target": f"{int(sum(np.isfinite(steps)))} of {len(rows)} robots",
            "steps_saved_mean": s_mean, "steps_saved_std": s_std, "wall_saved_mean": w_mean, "wall_saved_std": w_std}
     sem = [r.get("semantic_steps_saved_mean", np.nan) for r in rows]
     if any(np.isfinite(sem)):
@@ -197,10 +206,11 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = ()
     lines += ["", head, rule]
     for r in rows:
         sem = bool(r.get("semantic_preset"))
-        line = (f"| {r['source']} -> {r['target']} | {r['seeds']} | {f(r['threshold'], '{:.2f}')} | "
-                f"{steps(r['scratch_steps_mean'], r['scratch_steps_std'])} | "
-                f"{steps(r['transfer_steps_mean'], r['transfer_steps_std'])} ({r['transfer_preset']}) | "
-                f"{pct(r['steps_saved_mean'], r['steps_saved_std'])} ({r['seeds_both_reached']}/{r['seeds']}) | ")
+        line = (f"| {r['source']} -> {r['target']} | {r['seeds']} | {f(r['threshold'], '{:.3g}')} | "
+                f"{steps(r['scratch_steps_mean'], r['scratch_steps_std'])} | ")
+        line += (f"{steps(r['transfer_steps_mean'], r['transfer_steps_std'])} ({r['transfer_preset']}) | "
+                 f"{pct(r['steps_saved_mean'], r['steps_saved_std'])} ({r['seeds_both_reached']}/{r['seeds']}) | "
+                 if r.get("transfer_ran", True) else f"not run ({r['transfer_preset']}) | | ")
         if has_sem:
             line += (f"{steps(r['semantic_steps_mean'], r['semantic_steps_std'])} ({r['semantic_preset']}) | "
                      f"{pct(r['semantic_steps_saved_mean'], r['semantic_steps_saved_std'])} "
@@ -213,11 +223,14 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = ()
                  f"({100 * r['paper_saved']:.0f} %) |" if r.get("paper_hours_scratch") else "|")
         lines.append(line)
     avg = average_row(rows)
-    lines += [
-        "",
-        f"**Average over {avg['target']}:** env steps saved with the paper's transfer "
-        f"{pct(avg['steps_saved_mean'], avg['steps_saved_std'])}, wall time "
-        f"{pct(avg['wall_saved_mean'], avg['wall_saved_std'])} (± = spread over robots)."]
+    if any(r.get("transfer_ran", True) for r in rows):
+        lines += [
+            "",
+            f"**Average over {avg['target']}:** env steps saved with the paper's transfer "
+            f"{pct(avg['steps_saved_mean'], avg['steps_saved_std'])}, wall time "
+            f"{pct(avg['wall_saved_mean'], avg['wall_saved_std'])} (± = spread over robots)."]
+    else:
+        lines += ["", f"**Average over {len(rows)} robots:** the paper's transfer did not run in these runs."]
     if "semantic_steps_saved_mean" in avg:
         lines.append(f"With the semantic transfer (over {avg['semantic_robots']}): env steps saved "
                      f"{pct(avg['semantic_steps_saved_mean'], avg['semantic_steps_saved_std'])}, wall time "
@@ -225,4 +238,62 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = ()
     paper = f" ({100 * avg['paper_saved']:.0f} % over these robots' rows)" if "paper_saved" in avg else ""
     lines.append(f"**Paper (Table IV):** about {100 * PAPER_AVERAGE_SAVING:.0f} % less training time on "
                  f"average{paper} (Isaac Gym, 4096 envs, RTX 4090; hours, no seeds or env steps given).")
+    return "\n".join(lines) + "\n"
+
+
+VARIANT_FIELDS = ("source", "target", "preset", "seeds", "threshold", "threshold_metric", "steps_per_seed",
+                  "steps_mean", "steps_std", "steps_saved_mean", "steps_saved_std", "seeds_both_reached",
+                  "final_reward_mean", "final_reward_std")
+
+
+def variant_rows(source: str, target: str, rows: Sequence[Mapping[str, Any]], threshold_fraction: float,
+                 final_window: int, metric: str = "episode_reward") -> list[dict[str, Any]]:
+    """Every variant of one robot's target rows against its scratch baseline (the threshold rule of
+    ``robot_row``): env steps to the threshold per seed (NaN: never), their mean and std, the
+    saving per paired seed, and the final reward. Scratch first, then the variants by name."""
+    curves = curves_by_preset(rows, metric)
+    if "scratch" not in curves:
+        raise ValueError(f"{source} -> {target}: no metrics for preset 'scratch' (the baseline every saving is "
+                         f"measured against); presets present: {sorted(curves)}")
+    threshold = float(threshold_fraction * curves["scratch"]["metric"][:, -final_window:].mean())
+    times = {name: _time_to(c, threshold) for name, c in curves.items()}
+    out = []
+    for name in ["scratch"] + sorted(p for p in curves if p != "scratch"):
+        final = curves[name]["reward"][:, -final_window:].mean(axis=1)
+        cmp = _compare(times["scratch"], times[name])
+        out.append({"source": source, "target": target, "preset": name, "seeds": int(final.shape[0]),
+                    "threshold": threshold, "threshold_metric": metric,
+                    "steps_per_seed": [float(x) for x in times[name]["steps"]],
+                    "steps_mean": cmp["steps_mean"], "steps_std": cmp["steps_std"],
+                    "steps_saved_mean": cmp["steps_saved_mean"] if name != "scratch" else float("nan"),
+                    "steps_saved_std": cmp["steps_saved_std"] if name != "scratch" else float("nan"),
+                    "seeds_both_reached": cmp["seeds_both_reached"],
+                    "final_reward_mean": float(final.mean()), "final_reward_std": float(final.std())})
+    return out
+
+
+def format_variants(rows: Sequence[Mapping[str, Any]]) -> str:
+    """A markdown table of ``variant_rows`` (one robot pair)."""
+    if not rows:
+        return ""
+    first = rows[0]
+
+    def m(v):
+        return "never" if not np.isfinite(v) else f"{v / 1e6:.2f}"
+
+    lines = [f"## {first['source']} -> {first['target']}: every variant", "",
+             f"Threshold {first['threshold']:.4g} ({first['threshold_metric']}); env steps in millions, per seed "
+             "in the seeds' order; saved = 1 - variant / scratch per paired seed, mean ± std over the seeds "
+             "where both reached it.", "",
+             "| variant | seeds | env steps to threshold, per seed | mean ± std | saved | final reward |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        saved = ("-" if r["preset"] == "scratch" else
+                 "not reached" if not np.isfinite(r["steps_saved_mean"]) else
+                 f"{100 * r['steps_saved_mean']:+.1f} % ± {100 * r['steps_saved_std']:.1f} "
+                 f"({r['seeds_both_reached']}/{r['seeds']})")
+        spread = (f"{r['steps_mean'] / 1e6:.2f} ± {r['steps_std'] / 1e6:.2f} M" if np.isfinite(r["steps_mean"])
+                  else "not reached")
+        lines.append(f"| {r['preset']} | {r['seeds']} | {', '.join(m(x) for x in r['steps_per_seed'])} | {spread} | "
+                     f"{saved} | {r['final_reward_mean']:.2f} ± {r['final_reward_std']:.2f} |")
     return "\n".join(lines) + "\n"

@@ -1,0 +1,221 @@
+"""Table IV from finished runs, several programs merged: time to threshold per variant and seed.
+
+    python -m ptrl_jax.table4 runs=[runs/go2_to_anymal_b/<stamp>,runs/go2_to_anymal_b_axis/<stamp>]
+    python -m ptrl_jax.table4 runs=[...] metric=step_reward/tracking_lin_vel out=docs/results/anymal_b
+
+A variant that ran in another program (a control with another ``transfer.knee``, a second seed
+root, a freeze-ratio sweep on the same source) is compared with the scratch runs of the first,
+seed by seed. That pairing holds because every program gives seed ``k`` of seed root ``seed``
+the same keys whatever variants it holds (``ptrl_jax.core.program``). Runs are grouped by
+(source robot, target robot); within a group:
+
+- every run must train its target with the same settings (``target.ppo`` and ``target.env``),
+  or the steps to a threshold would not be comparable; a difference is refused, naming the key
+  (a key that an older run's config lacks is not compared: it came later, with a default that
+  keeps the old behaviour);
+- seeds are labelled by (seed root, index), so seed 0 of ``seed=1`` is a seed of its own;
+- where the runs' transfer settings (``transfer.*``) differ, each semantic variant's name gets
+  the settings that differ (``L2@semantic_actor [knee=axis]``); the same variant and seed in two
+  runs is refused, naming both;
+- the threshold is ``fraction`` x the mean over every scratch seed of the last ``window``
+  iterations of ``metric`` (report.md's rule).
+
+It prints the Table IV rows (``ptrl_jax.io.transfer_table``; the paper's transfer shows 'not
+run' unless ``transfer_preset`` ran) and a table of every variant. Wall times come from
+different programs, sharing the cores with whatever else ran, so compare env steps. ``out=DIR``
+writes table4.md, table4.csv and variants.csv there (a folder that holds them is refused unless
+``overwrite=true``). Keys: ``runs``, ``metric`` (default: the first run's
+``report.threshold_metric``), ``fraction`` and ``window`` (likewise), ``transfer_preset`` (L2),
+``out``, ``overwrite``.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import yaml
+
+from ptrl_jax.core.freeze import MODE_SEPARATOR
+from ptrl_jax.io import artifacts, transfer_table
+from ptrl_jax.io.overrides import ConfigError, coerce, parse_cli
+
+KEYS = ("runs", "metric", "fraction", "window", "transfer_preset", "out", "overwrite")
+OUTPUTS = ("table4.md", "table4.csv", "variants.csv")
+
+
+def read_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """A finished run's config.yaml (as a dict) and metrics.csv rows; a folder without them is
+    refused, naming what is missing."""
+    run_dir = Path(run_dir)
+    missing = [n for n in ("config.yaml", "metrics.csv") if not (run_dir / n).is_file()]
+    if missing:
+        raise ConfigError(f"runs: {run_dir} has no {' or '.join(missing)} (is it a finished run folder?)")
+    with open(run_dir / "config.yaml") as f:
+        cfg = yaml.safe_load(f) or {}
+    return cfg, artifacts.read_metrics_csv(run_dir / "metrics.csv")
+
+
+def _flat(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _target_settings(cfg: Mapping[str, Any], robot: str) -> dict[str, Any]:
+    """The settings a target stage trains with: target.ppo and target.env (the first target; an
+    extra target robot trains with target.ppo and its registry env, named by robot)."""
+    target = cfg.get("target", {})
+    if target.get("robot") == robot:
+        return _flat({"ppo": target.get("ppo", {}), "env": target.get("env", {})}, "target.")
+    return _flat({"ppo": target.get("ppo", {})}, "target.") | {"target.env": f"registry default of {robot}"}
+
+
+def _source_of(run_dir: Path, cfg: Mapping[str, Any]) -> str:
+    ckpt = cfg.get("source_checkpoint") or ""
+    return f"loaded from {ckpt}" if ckpt else f"trained in {run_dir}"
+
+
+def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[str, Any]]]]
+               ) -> dict[tuple[str, str], dict[str, Any]]:
+    """{(source robot, target robot): {"rows": merged target rows, "seeds": [(run, root, index)],
+    "notes": [...]}} from ``(run_dir, config dict, metrics rows)`` triples; see the module doc."""
+    groups: dict[tuple[str, str], dict[str, Any]] = {}
+    for run_dir, cfg, rows in runs:
+        source = str(cfg.get("source", {}).get("robot", "?"))
+        targets = list(dict.fromkeys(str(r["robot"]) for r in rows if r["stage"] == "target"))
+        if not targets:
+            raise ConfigError(f"runs: {run_dir} has no target rows in its metrics.csv")
+        for robot in targets:
+            g = groups.setdefault((source, robot), {"runs": [], "rows": [], "labels": {}, "seeds": [],
+                                                     "settings": None, "transfer": []})
+            g["runs"].append((run_dir, cfg))
+            settings = _target_settings(cfg, robot)
+            if g["settings"] is None:
+                g["settings"], g["settings_run"] = settings, run_dir
+            else:
+                # A key one config lacks was added to the project after that run, with a default
+                # that keeps the old behaviour: only keys both configs hold are compared.
+                differ = sorted(k for k in set(settings) & set(g["settings"])
+                                if settings[k] != g["settings"][k])
+                if differ:
+                    k = differ[0]
+                    raise ConfigError(
+                        f"runs: {run_dir} and {g['settings_run']} train {robot} differently ({k}: "
+                        f"{settings.get(k)!r} against {g['settings'].get(k)!r}"
+                        + (f", and {len(differ) - 1} more key(s)" if len(differ) > 1 else "")
+                        + "), so their steps to a threshold are not comparable")
+            g["transfer"].append(_flat(cfg.get("transfer", {}), "transfer."))
+            g["rows"].append((run_dir, cfg, [r for r in rows if r["stage"] == "target" and str(r["robot"]) == robot]))
+    out = {}
+    for key, g in groups.items():
+        # The transfer settings that differ between the runs name the semantic variants.
+        keys = sorted({k for t in g["transfer"] for k in t})
+        varying = [k for k in keys if len({repr(t.get(k)) for t in g["transfer"]}) > 1]
+        seen: dict[tuple[str, tuple[int, int]], Path] = {}
+        seed_ids: dict[tuple[int, int], int] = {}
+        merged = []
+        for (run_dir, cfg, rows), tcfg in zip(g["rows"], g["transfer"]):
+            root = int(cfg.get("seed", 0))
+            suffix = (" [" + ", ".join(f"{k.split('.', 1)[1]}={tcfg.get(k)}" for k in varying) + "]") if varying else ""
+            for r in rows:
+                name = str(r["preset"])
+                label = name + suffix if name.partition(MODE_SEPARATOR)[2].startswith("semantic") else name
+                seed = (root, int(r["seed"]))
+                if (label, seed) in seen and seen[(label, seed)] != run_dir:
+                    raise ConfigError(f"runs: {label!r} seed {seed[1]} of seed root {root} is in both "
+                                      f"{seen[(label, seed)]} and {run_dir}; give each run once")
+                seen[(label, seed)] = run_dir
+                sid = seed_ids.setdefault(seed, len(seed_ids))
+                merged.append({**r, "preset": label, "seed": sid})
+        notes = [f"{run_dir}: seed root {int(cfg.get('seed', 0))}, {cfg.get('seeds', 1)} seed(s), variants "
+                 f"{sorted({str(r['preset']) for r in rows})}; source {_source_of(run_dir, cfg)}"
+                 for run_dir, cfg, rows in g["rows"]]
+        order = sorted(seed_ids, key=seed_ids.get)
+        notes.append("seeds, in the tables' order (seed root, index): " + ", ".join(f"({a}, {b})" for a, b in order))
+        out[key] = {"rows": merged, "notes": notes, "seeds": order}
+    return out
+
+
+def build(run_dirs: Sequence[Path], metric: str | None = None, fraction: float | None = None,
+          window: int | None = None, transfer_preset: str = "L2") -> dict[str, Any]:
+    """The merged tables of ``run_dirs``: {"table": Table IV rows, "variants": every variant's
+    rows, "notes": [...], "markdown": str}."""
+    if not run_dirs:
+        raise ConfigError("runs=[DIR,...]: name at least one finished run folder")
+    runs = [(Path(d), *read_run(Path(d))) for d in run_dirs]
+    report = runs[0][1].get("report", {})
+    metric = metric or str(report.get("threshold_metric", "episode_reward"))
+    fraction = float(fraction if fraction is not None else report.get("threshold_fraction", 0.9))
+    window = int(window if window is not None else report.get("final_window", 10))
+    for run_dir, _, rows in runs:
+        if rows and metric not in rows[0]:
+            raise ConfigError(f"metric={metric!r}: {run_dir}/metrics.csv has no such column")
+    table, variants, notes = [], [], [
+        f"Threshold: {fraction:g} x scratch's final {metric} (mean over its seeds of the last {window} iterations)",
+        "Wall times come from separate programs that may have shared the cores: compare env steps"]
+    experiment = "+".join(sorted({d.parent.name for d, _, _ in runs}))
+    for (source, target), g in merge_runs(runs).items():
+        try:
+            table.append(transfer_table.robot_row(experiment, source, target, g["rows"], transfer_preset, fraction, window, metric,
+                                                  require_transfer=False))
+            variants.append(transfer_table.variant_rows(source, target, g["rows"], fraction, window, metric))
+        except ValueError as e:
+            raise ConfigError(f"runs: {e}") from None
+        notes += [f"{source} -> {target}: {n}" for n in g["notes"]]
+    markdown = transfer_table.format_markdown(table, notes) + "".join("\n" + transfer_table.format_variants(v)
+                                                                     for v in variants)
+    return {"table": table, "variants": variants, "notes": notes, "markdown": markdown}
+
+
+def write(out: Path, result: Mapping[str, Any], overwrite: bool = False) -> None:
+    out = Path(out)
+    present = [n for n in OUTPUTS if (out / n).exists()]
+    if present and not overwrite:
+        raise ConfigError(f"out={out} already holds {', '.join(present)}; pass overwrite=true to replace them")
+    out.mkdir(parents=True, exist_ok=True)
+    rows = [{k: r.get(k, "") for k in transfer_table.FIELDS} for r in result["table"]]
+    artifacts.write_metrics_csv(out / "table4.csv", rows + [transfer_table.average_row(result["table"])])
+    flat = [{k: (" ".join(f"{x:g}" for x in r[k]) if k == "steps_per_seed" else r[k])
+             for k in transfer_table.VARIANT_FIELDS} for v in result["variants"] for r in v]
+    artifacts.write_metrics_csv(out / "variants.csv", flat)
+    artifacts.atomic_write_text(out / "table4.md", result["markdown"])
+
+
+def _run_list(value: str) -> list[Path]:
+    items = [s.strip() for s in value.strip().strip("[]").split(",") if s.strip()]
+    return [Path(s) for s in items]
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(f"{__doc__}\nkeys: {', '.join(KEYS)}")
+        return 0
+    try:
+        args = parse_cli(argv)
+        unknown = sorted(set(args) - set(KEYS))
+        if unknown:
+            raise ConfigError(f"unknown argument(s) {unknown}; known: {', '.join(KEYS)}")
+        if "runs" not in args:
+            raise ConfigError("runs=[DIR,...] is required (finished run folders, each with config.yaml and metrics.csv)")
+        result = build(_run_list(args["runs"]), args.get("metric"),
+                       coerce(args["fraction"], float, "fraction") if "fraction" in args else None,
+                       coerce(args["window"], int, "window") if "window" in args else None,
+                       args.get("transfer_preset", "L2"))
+        if "out" in args:
+            write(Path(args["out"]), result, coerce(args.get("overwrite", "false"), bool, "overwrite"))
+        print(result["markdown"])
+        return 0
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,118 @@
+"""``python -m ptrl_jax.table4``: Table IV rebuilt from several finished runs, paired by seed, by hand."""
+
+import math
+
+import pytest
+import yaml
+
+from ptrl_jax import table4
+from ptrl_jax.io import artifacts
+from ptrl_jax.io.overrides import ConfigError
+
+STEPS = [100, 200, 300, 400, 500]
+PPO = {"num_envs": 4, "unroll_length": 25, "num_iterations": 5}
+
+
+def make_run(path, curves, seed=0, knee="axis", ppo=PPO, source_checkpoint=""):
+    """A finished run folder: config.yaml and metrics.csv with ``curves``
+    ({(preset, seed index): reward per iteration}) as the target rows, go2 -> anymal_b."""
+    path.mkdir(parents=True)
+    seeds = 1 + max(k for _, k in curves)
+    cfg = {"name": path.parent.name, "seed": seed, "seeds": seeds, "source_checkpoint": source_checkpoint,
+           "source": {"robot": "go2"}, "target": {"robot": "anymal_b", "ppo": dict(ppo), "env": {"kp": 80.0}},
+           "transfer": {"mode": "paper", "knee": knee, "noise_std": 0.5},
+           "report": {"threshold_metric": "episode_reward", "threshold_fraction": 0.8, "final_window": 2}}
+    (path / "config.yaml").write_text(yaml.safe_dump(cfg))
+    rows = [{"stage": "target", "robot": "anymal_b", "preset": p, "seed": k, "iteration": i, "env_steps": STEPS[i],
+             "wall_time_s": float(i), "episode_reward": r} for (p, k), rew in curves.items() for i, r in enumerate(rew)]
+    artifacts.write_metrics_csv(path / "metrics.csv", rows)
+    return path
+
+
+# Scratch finals over the last 2 iterations: (3+4)/2 = 3.5 and (3+5)/2 = 4, mean 3.75, threshold
+# 0.8 x 3.75 = 3.0: scratch reaches it at 400 env steps on both seeds.
+SCRATCH = {("scratch", 0): [0, 1, 2, 3, 4], ("scratch", 1): [0, 1, 2, 3, 5]}
+
+
+class TestMergedRuns:
+    def test_a_variant_of_another_run_is_paired_with_scratch_seed_by_seed(self, tmp_path):
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH, ("L2@semantic_actor", 0): [0, 3, 3, 3, 3],
+                                            ("L2@semantic_actor", 1): [0, 0, 3, 3, 3]}, knee="flexion")
+        b = make_run(tmp_path / "b" / "1", {("L2@semantic_actor", 0): [0, 0, 0, 0, 3],
+                                            ("L2@semantic_actor", 1): [0, 0, 0, 3, 3]}, knee="axis")
+        result = table4.build([a, b])
+        (row,) = result["table"]
+        assert row["threshold"] == pytest.approx(3.0) and not row["transfer_ran"]
+        # flexion: 200 and 300 against 400: saved 0.5 and 0.25
+        assert row["semantic_preset"] == "L2@semantic_actor [knee=flexion]"
+        assert row["semantic_steps_saved_mean"] == pytest.approx(0.375)
+        (variants,) = result["variants"]
+        by = {v["preset"]: v for v in variants}
+        assert list(by) == ["scratch", "L2@semantic_actor [knee=axis]", "L2@semantic_actor [knee=flexion]"]
+        axis = by["L2@semantic_actor [knee=axis]"]
+        # axis: 500 and 400 against 400: saved -0.25 and 0
+        assert axis["steps_per_seed"] == [500.0, 400.0]
+        assert axis["steps_saved_mean"] == pytest.approx(-0.125) and axis["steps_saved_std"] == pytest.approx(0.125)
+        assert math.isnan(by["scratch"]["steps_saved_mean"])
+        assert "not run (L2)" in result["markdown"] and "-12.5 % ± 12.5 (2/2)" in result["markdown"]
+
+    def test_seed_roots_are_seeds_of_their_own(self, tmp_path):
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH, ("none@semantic", 0): [0, 3, 3, 3, 3],
+                                            ("none@semantic", 1): [0, 3, 3, 3, 3]})
+        b = make_run(tmp_path / "b" / "1", {("scratch", 0): [0, 0, 0, 3, 4],
+                                            ("none@semantic", 0): [3, 3, 3, 3, 3]}, seed=1)
+        (variants,) = table4.build([a, b])["variants"]
+        scratch, sem = variants
+        assert scratch["seeds"] == 3 and sem["seeds"] == 3
+        # the threshold now averages three scratch seeds: 0.8 x (3.5 + 4 + 3.5) / 3
+        assert scratch["threshold"] == pytest.approx(0.8 * 11 / 3)
+        # per seed (0,0), (0,1), (1,0): 400/400/400 for scratch, 200/200/100 for the variant
+        assert sem["steps_per_seed"] == [200.0, 200.0, 100.0]
+        assert sem["steps_saved_mean"] == pytest.approx((0.5 + 0.5 + 0.75) / 3)
+
+    def test_the_same_variant_and_seed_in_two_runs_is_refused(self, tmp_path):
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH})
+        b = make_run(tmp_path / "b" / "1", {("scratch", 0): [0, 0, 0, 3, 4]})
+        with pytest.raises(ConfigError, match=r"'scratch' seed 0 of seed root 0 is in both"):
+            table4.build([a, b])
+
+    def test_runs_that_train_the_target_differently_are_refused(self, tmp_path):
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH})
+        b = make_run(tmp_path / "b" / "1", {("L2", 0): [0, 3, 3, 3, 3]}, ppo={**PPO, "num_envs": 8})
+        with pytest.raises(ConfigError, match=r"target.ppo.num_envs: 8 against 4"):
+            table4.build([a, b])
+
+    def test_a_group_without_scratch_is_refused(self, tmp_path):
+        a = make_run(tmp_path / "a" / "1", {("L2", 0): [0, 3, 3, 3, 3]})
+        with pytest.raises(ConfigError, match="scratch"):
+            table4.build([a])
+
+    def test_a_folder_that_is_not_a_run_is_refused(self, tmp_path):
+        (tmp_path / "empty").mkdir()
+        with pytest.raises(ConfigError, match="has no config.yaml or metrics.csv"):
+            table4.build([tmp_path / "empty"])
+
+    def test_an_unknown_metric_is_refused(self, tmp_path):
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH})
+        with pytest.raises(ConfigError, match="no such column"):
+            table4.build([a], metric="step_reward/tracking_lin_vel")
+
+
+class TestCommandLine:
+    def test_writes_the_tables_and_keeps_what_is_there(self, tmp_path, capsys):
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH, ("L2", 0): [0, 3, 3, 3, 3], ("L2", 1): [0, 3, 3, 3, 3]})
+        out = tmp_path / "table"
+        assert table4.main([f"runs=[{a}]", f"out={out}"]) == 0
+        assert "| go2 -> anymal_b | 2 |" in capsys.readouterr().out
+        rows = artifacts.read_metrics_csv(out / "table4.csv")
+        assert rows[0]["steps_saved_mean"] == pytest.approx(0.5) and rows[-1]["experiment"] == "average"
+        variants = artifacts.read_metrics_csv(out / "variants.csv")
+        assert [v["preset"] for v in variants] == ["scratch", "L2"]
+        before = (out / "table4.md").read_text()
+        assert table4.main([f"runs=[{a}]", f"out={out}"]) == 2
+        assert "already holds table4.md" in capsys.readouterr().err
+        assert (out / "table4.md").read_text() == before
+
+    def test_unknown_keys_are_refused(self, capsys):
+        assert table4.main(["runs=[x]", "thresold=0.5"]) == 2
+        assert "unknown argument(s) ['thresold']" in capsys.readouterr().err
