@@ -15,6 +15,10 @@ view of ``MjData``. Only the physics engine differs, which is the point of a sim
   critic's ``privileged_state``.
 - ``terminated``: a fall (or non-finite physics); ``truncated``: the episode time limit.
 - ``reset(options={"command": (vx, vy, yaw_rate)})`` holds a fixed command for the episode.
+- With ``commands.curriculum``, the view keeps its command level across episodes as each env of
+  the trainer does: a reset after a time-out or a fall moves it by the env's own rule
+  (``next_command_level``), a reset mid-episode keeps it, and ``options={"command_level": x}``
+  sets it. ``info["command_level"]`` reports it.
 """
 
 from __future__ import annotations
@@ -88,9 +92,11 @@ class LocomotionGymEnv(gymnasium.Env):
         self.action_space = spaces.Box(-clip, clip, (env.action_size,), np.float32)
         self._info: dict | None = None
         self._fixed_command: np.ndarray | None = None
+        self._ended = (False, False)  # (terminated, truncated) of the last step
+        self._next_level = jax.jit(env.next_command_level)
 
-    def _first_observation(self, view: DataView, key: jax.Array, command, use_command):
-        info = self.mjx_env._fresh_info(view, key)  # noqa: SLF001
+    def _first_observation(self, view: DataView, key: jax.Array, command, use_command, level):
+        info = self.mjx_env._fresh_info(view, key, level)  # noqa: SLF001
         info["command"] = jnp.where(use_command, command, info["command"])
         obs, info = self.mjx_env._observe(view, info)  # noqa: SLF001
         return obs, info
@@ -109,6 +115,7 @@ class LocomotionGymEnv(gymnasium.Env):
             command = np.asarray(command, np.float32)
             if command.shape != (3,):
                 raise ValueError(f"options['command'] must be (vx, vy, yaw_rate), got shape {command.shape}")
+        level = self._command_level(options.get("command_level"))
         self._fixed_command = command
         key = jax.random.PRNGKey(int(self.np_random.integers(0, 2**31 - 1)))
         k_init, k_info = jax.random.split(key)
@@ -117,8 +124,30 @@ class LocomotionGymEnv(gymnasium.Env):
         self.data.qpos[:] = qpos
         self.data.qvel[:] = qvel
         mujoco.mj_forward(self.model, self.data)
-        obs, self._info = self._first_obs(DataView.of(self.data), k_info, *self._command_args())
+        obs, self._info = self._first_obs(DataView.of(self.data), k_info, *self._command_args(), level)
+        self._ended = (False, False)
         return self._observation(obs), self._info_dict(obs, {})
+
+    def _command_level(self, requested) -> jax.Array:
+        """The next episode's curriculum level: ``requested`` if given, else the last episode's
+        moved by the curriculum's rule where it ended (kept where it was reset mid-episode), else
+        ``curriculum_start``."""
+        c = self.config.commands
+        if requested is not None:
+            if not c.curriculum:
+                raise ValueError("options['command_level'] needs commands.curriculum=true in the env config")
+            if not c.curriculum_start <= float(requested) <= 1.0:
+                raise ValueError(f"options['command_level'] must lie in [curriculum_start={c.curriculum_start}, 1], "
+                                 f"got {requested}")
+            return jnp.asarray(float(requested), jnp.float32)
+        if not c.curriculum or self._info is None:
+            return jnp.asarray(c.curriculum_start, jnp.float32)
+        info = self._info
+        fell, timed_out = self._ended
+        if not (fell or timed_out):
+            return jnp.asarray(info["command_level"], jnp.float32)
+        return self._next_level(info["command_level"], info["tracking_sum"], info["step"],
+                                jnp.asarray(fell), jnp.asarray(timed_out))
 
     def step(self, action):
         if self._info is None:
@@ -139,6 +168,7 @@ class LocomotionGymEnv(gymnasium.Env):
         if self._fixed_command is not None:
             info = {**info, "command": jnp.asarray(self._fixed_command)}
         self._info = info
+        self._ended = (bool(t.termination), bool(t.truncation))
         return (
             self._observation(t.obs),
             float(t.reward),
@@ -178,6 +208,8 @@ class LocomotionGymEnv(gymnasium.Env):
             "privileged_state": np.asarray(obs["privileged_state"], np.float32),
             "command": np.asarray(self._info["command"], np.float32),
         }
+        if self.config.commands.curriculum:
+            info["command_level"] = float(self._info["command_level"])
         info.update({k: float(v) for k, v in metrics.items()})
         return info
 

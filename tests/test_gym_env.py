@@ -57,6 +57,41 @@ class TestFixedCommand:
             env.step(np.zeros(3, np.float32))
 
 
+class TestCommandCurriculum:
+    """The view carries its curriculum level across episodes, as an env of the trainer does."""
+
+    def env(self):
+        cfg = envs.default_config("go2")
+        cfg = dataclasses.replace(cfg, commands=dataclasses.replace(cfg.commands, curriculum=True))
+        return envs.LocomotionGymEnv("go2", cfg)
+
+    def end_episode(self, env, tracking, terminated, truncated):
+        """As if the episode had ended after 100 steps with a mean tracking kernel ``tracking``."""
+        env._info = {**env._info, "step": jnp.asarray(100, jnp.int32), "tracking_sum": jnp.asarray(100.0 * tracking)}
+        env._ended = (terminated, truncated)
+
+    def test_the_level_moves_at_each_episode_end_and_stays_mid_episode(self):
+        env = self.env()
+        _, info = env.reset(seed=0)
+        assert info["command_level"] == pytest.approx(0.3)  # curriculum_start
+        self.end_episode(env, 0.9, False, True)  # a time-out that tracked: up one step
+        _, info = env.reset(seed=1)
+        assert info["command_level"] == pytest.approx(0.4)
+        self.end_episode(env, 0.5, False, True)  # a time-out below the bar: stays
+        assert env.reset(seed=2)[1]["command_level"] == pytest.approx(0.4)
+        self.end_episode(env, 0.9, True, False)  # a fall: down one step
+        assert env.reset(seed=3)[1]["command_level"] == pytest.approx(0.3)
+        env.reset(options={"command_level": 0.7})
+        env.step(np.zeros(12, np.float32))
+        assert env.reset(seed=4)[1]["command_level"] == pytest.approx(0.7)  # reset mid-episode: kept
+
+    def test_a_bad_level_is_refused(self):
+        with pytest.raises(ValueError, match=r"must lie in \[curriculum_start=0.3, 1\], got 1.5"):
+            self.env().reset(options={"command_level": 1.5})
+        with pytest.raises(ValueError, match="needs commands.curriculum=true"):
+            envs.LocomotionGymEnv("go2").reset(options={"command_level": 0.5})
+
+
 def state_like(gym_env, env=None):
     """A state of the JAX env ``env`` (default: the Gymnasium view's own MJX env) holding exactly
     the MuJoCo C env's current state. Both engines keep their physics in an ``mjx.Data``."""
