@@ -37,7 +37,7 @@ from ptrl_jax.io.artifacts import CheckpointError, load_checkpoint
 from ptrl_jax.config import NetworkConfig
 from ptrl_jax.io.figures import FIG6_SCHEDULE, schedule_commands
 from ptrl_jax.core.networks import make_policy
-from ptrl_jax.io.overrides import ConfigError, apply_overrides, coerce, flatten, parse_cli
+from ptrl_jax.io.overrides import ConfigError, apply_overrides, coerce, flatten, parse_known_cli
 from ptrl_jax.core.train import normalize_obs
 
 SIMS = ("mjx", "mujoco")
@@ -505,10 +505,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{__doc__}\nkeys: {', '.join(KNOWN_ARGS)}")
         return 0
     try:
-        args = parse_cli(argv)
-        unknown = sorted(set(args) - set(KNOWN_ARGS))
-        if unknown:
-            raise ConfigError(f"unknown argument(s) {unknown}; known: {', '.join(KNOWN_ARGS)}")
+        args = parse_known_cli(argv, KNOWN_ARGS)
         if "ckpt" not in args:
             raise ConfigError("ckpt=PATH is required (a source.npz or target_*.npz of a run)")
         command = (float(args.get("vx", 0.5)), float(args.get("vy", 0.0)), float(args.get("yaw", 0.0)))

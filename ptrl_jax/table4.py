@@ -39,7 +39,7 @@ import yaml
 
 from ptrl_jax.core.freeze import MODE_SEPARATOR
 from ptrl_jax.io import artifacts, transfer_table
-from ptrl_jax.io.overrides import ConfigError, coerce, parse_cli
+from ptrl_jax.io.overrides import ConfigError, coerce, parse_known_cli
 
 KEYS = ("runs", "metric", "fraction", "window", "transfer_preset", "out", "overwrite")
 OUTPUTS = ("table4.md", "table4.csv", "variants.csv")
@@ -198,10 +198,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{__doc__}\nkeys: {', '.join(KEYS)}")
         return 0
     try:
-        args = parse_cli(argv)
-        unknown = sorted(set(args) - set(KEYS))
-        if unknown:
-            raise ConfigError(f"unknown argument(s) {unknown}; known: {', '.join(KEYS)}")
+        args = parse_known_cli(argv, KEYS)
         if "runs" not in args:
             raise ConfigError("runs=[DIR,...] is required (finished run folders, each with config.yaml and metrics.csv)")
         result = build(_run_list(args["runs"]), args.get("metric"),

@@ -31,7 +31,7 @@ from ptrl_jax.io.artifacts import CheckpointError
 from ptrl_jax.config import TransferConfig
 from ptrl_jax.core.freeze import TRANSFER_MODES, empty_mask, transfer
 from ptrl_jax.core.networks import init_actor_critic
-from ptrl_jax.io.overrides import ConfigError, coerce, parse_cli, to_dict
+from ptrl_jax.io.overrides import ConfigError, coerce, parse_known_cli, to_dict
 
 KEYS = ("source", "target", "mode", "out", "seed", "joint_map", "unmapped_blocks", "knee", "noise_std")
 
@@ -82,10 +82,7 @@ def main(argv: list[str] | None = None) -> int:
         print(__doc__)
         return 0
     try:
-        args = parse_cli(argv)
-        unknown = sorted(set(args) - set(KEYS))
-        if unknown:
-            raise ConfigError(f"unknown argument(s) {unknown}; known: {', '.join(KEYS)}")
+        args = parse_known_cli(argv, KEYS)
         for key in ("source", "target", "out"):
             if key not in args:
                 raise ConfigError(f"{key}= is required: python -m ptrl_jax.transfer source=SRC.npz "

@@ -153,6 +153,17 @@ def parse_cli(args: Iterable[str]) -> dict[str, str]:
     return out
 
 
+def parse_known_cli(args: Iterable[str], known: Iterable[str]) -> dict[str, str]:
+    """``parse_cli`` for a command with a fixed set of keys (evaluate, transfer, table4): a key
+    outside ``known`` is refused, naming the known ones."""
+    known = tuple(known)
+    out = parse_cli(args)
+    unknown = sorted(set(out) - set(known))
+    if unknown:
+        raise ConfigError(f"unknown argument(s) {unknown}; known: {', '.join(known)}")
+    return out
+
+
 def preset_path(name: str) -> Path:
     p = Path(name)
     if p.suffix in (".yaml", ".yml") and p.is_file():
