@@ -135,6 +135,10 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     sharding.check_divisible(env_counts(cfg), devices)
     t = time.monotonic()
     program, init, advance, shardings = _compiled_program(cfg, progress, key, budget, devices)
+    # Everything the report needs is imported now, not after training: a source file edited while
+    # the run trains cannot then break its report (it did once, hours in; the state was saved, and
+    # `resume=` wrote the report).
+    checker = walking_checker(cfg)
     run_dir = resume_from or run_dir or new_run_dir(cfg)  # after compiling: a refused run writes nothing
     inputs = load_source_params(cfg, program), load_init_target(cfg, program)
     if resume_from is not None:
@@ -173,7 +177,7 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     if cfg.report.zero_shot_check and (cfg.trains_source or cfg.source_checkpoint or cfg.init_checkpoint):
         initial = jax.device_get(program.initial_targets(state))
     result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start, initial,
-                          checker=walking_checker(cfg))
+                          checker=checker)
     (run_dir / RESUME_STATE).unlink(missing_ok=True)  # finished: the final checkpoints replace it
     result.update({"run_dir": run_dir, "compile_s": compile_s, "run_s": run_s, "output": out,
                    "interrupted": False, "state": state})

@@ -17,6 +17,7 @@ from ptrl_jax.core.freeze import TRANSFER_MODES, variant
 from ptrl_jax.core.program import ProgramOutput, target_run_id
 from ptrl_jax.io import artifacts, summary
 from ptrl_jax.io.checkpoints import save_checkpoints
+from ptrl_jax.io.tensorboard import write_events  # light: tensorboardX loads only when it writes
 
 
 def metric_rows(
@@ -61,8 +62,6 @@ def save_outputs(
     multi = len(cfg.targets) > 1  # several target robots: file names carry the robot
     artifacts.write_metrics_csv(run_dir / "metrics.csv", rows)
     if cfg.tensorboard:
-        from ptrl_jax.io.tensorboard import write_events
-
         write_events(run_dir / "tensorboard", rows, start_time=time.time() - max(
             (float(r.get("wall_time_s", 0.0)) for r in rows), default=0.0))
     if cfg.checkpoint:
