@@ -70,6 +70,15 @@ class TestMergedRuns:
         assert sem["steps_per_seed"] == [200.0, 200.0, 100.0]
         assert sem["steps_saved_mean"] == pytest.approx((0.5 + 0.5 + 0.75) / 3)
 
+    def test_a_variant_with_fewer_seeds_pairs_only_with_its_own(self, tmp_path):
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH})
+        b = make_run(tmp_path / "b" / "1", {("rho0.5@semantic", 0): [0, 0, 3, 3, 3]})  # seed 0 only: 300
+        (variants,) = table4.build([a, b])["variants"]
+        sem = variants[1]
+        # paired with scratch seed 0 alone (400): saved 0.25 with no spread, 1 seed both reached
+        assert sem["seeds"] == 1 and sem["seeds_both_reached"] == 1
+        assert sem["steps_saved_mean"] == pytest.approx(0.25) and sem["steps_saved_std"] == 0
+
     def test_the_same_variant_and_seed_in_two_runs_is_refused(self, tmp_path):
         a = make_run(tmp_path / "a" / "1", {**SCRATCH})
         b = make_run(tmp_path / "b" / "1", {("scratch", 0): [0, 0, 0, 3, 4]})

@@ -15,7 +15,8 @@ def fmt_number(v: Any, fmt: str = "{:.3f}") -> str:
 
 
 def curves_by_preset(rows: Sequence[Mapping[str, Any]], metric: str = "episode_reward") -> dict[str, dict[str, np.ndarray]]:
-    """{preset: {"env_steps": [T], "wall_time_s": [T], "reward": [seeds, T], "metric": [seeds, T]}}
+    """{preset: {"seeds": [S] (the seed ids, sorted; rows of the arrays below), "env_steps": [T],
+    "wall_time_s": [T], "reward": [S, T], "metric": [S, T]}}
     for target rows: "reward" is the episode reward, "metric" the column that time-to-threshold
     reads (``metric``: the episode reward itself, or one of its logged terms such as
     ``episode_reward/tracking_lin_vel``)."""
@@ -28,6 +29,7 @@ def curves_by_preset(rows: Sequence[Mapping[str, Any]], metric: str = "episode_r
     for preset, seeds in grouped.items():
         runs = [sorted(v, key=lambda r: r["iteration"]) for _, v in sorted(seeds.items())]
         out[preset] = {
+            "seeds": np.array(sorted(int(k) for k in seeds), int),
             "env_steps": np.array([r["env_steps"] for r in runs[0]], float),
             "wall_time_s": np.array([r["wall_time_s"] for r in runs[0]], float),
             "reward": np.array([[r["episode_reward"] for r in run] for run in runs], float),

@@ -75,16 +75,21 @@ def _stats(values: Sequence[float]) -> tuple[float, float]:
 def _time_to(curve: Mapping[str, np.ndarray], threshold: float) -> dict[str, np.ndarray]:
     """Per seed: env steps and wall time at the first iteration reaching ``threshold`` (NaN: never)."""
     i = _first_reach(curve["metric"], threshold)
-    return {"steps": np.where(i >= 0, curve["env_steps"][np.maximum(i, 0)], np.nan),
+    seeds = curve.get("seeds", np.arange(curve["metric"].shape[0]))
+    return {"seeds": np.asarray(seeds, int),
+            "steps": np.where(i >= 0, curve["env_steps"][np.maximum(i, 0)], np.nan),
             "wall": np.where(i >= 0, curve["wall_time_s"][np.maximum(i, 0)], np.nan)}
 
 
 def _compare(scratch: Mapping[str, np.ndarray], other: Mapping[str, np.ndarray]) -> dict[str, Any]:
-    """Savings of ``other`` against ``scratch``, per paired seed, over seeds where both reached."""
-    both = np.isfinite(scratch["steps"]) & np.isfinite(other["steps"])
+    """Savings of ``other`` against ``scratch``, per paired seed (the seed ids both ran), over the
+    seeds where both reached; ``other``'s own steps over all of its seeds."""
+    common, i_s, i_o = np.intersect1d(scratch["seeds"], other["seeds"], return_indices=True)
+    s_steps, o_steps = scratch["steps"][i_s], other["steps"][i_o]
+    both = np.isfinite(s_steps) & np.isfinite(o_steps)
     with np.errstate(divide="ignore", invalid="ignore"):
-        steps_saved = 1.0 - other["steps"] / scratch["steps"]
-        wall_saved = 1.0 - other["wall"] / scratch["wall"]
+        steps_saved = 1.0 - o_steps / s_steps
+        wall_saved = 1.0 - other["wall"][i_o] / scratch["wall"][i_s]
     out = {}
     out["steps_mean"], out["steps_std"] = _stats(other["steps"])
     out["wall_s_mean"] = _stats(other["wall"])[0]
