@@ -136,8 +136,8 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     t = time.monotonic()
     program, init, advance, shardings = _compiled_program(cfg, progress, key, budget, devices)
     # Everything the report needs is imported now, not after training: a source file edited while
-    # the run trains cannot then break its report (it did once, hours in; the state was saved, and
-    # `resume=` wrote the report).
+    # the run trains cannot then break its report (it did once, 40 minutes in; the state was
+    # saved, and `resume=` wrote the report).
     checker = walking_checker(cfg)
     run_dir = resume_from or run_dir or new_run_dir(cfg)  # after compiling: a refused run writes nothing
     inputs = load_source_params(cfg, program), load_init_target(cfg, program)

@@ -92,9 +92,7 @@ def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[st
         if not targets:
             raise ConfigError(f"runs: {run_dir} has no target rows in its metrics.csv")
         for robot in targets:
-            g = groups.setdefault((source, robot), {"runs": [], "rows": [], "labels": {}, "seeds": [],
-                                                     "settings": None, "transfer": []})
-            g["runs"].append((run_dir, cfg))
+            g = groups.setdefault((source, robot), {"rows": [], "settings": None, "transfer": []})
             settings = _target_settings(cfg, robot)
             if g["settings"] is None:
                 g["settings"], g["settings_run"] = settings, run_dir

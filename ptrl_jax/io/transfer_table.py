@@ -81,10 +81,16 @@ def _time_to(curve: Mapping[str, np.ndarray], threshold: float) -> dict[str, np.
             "wall": np.where(i >= 0, curve["wall_time_s"][np.maximum(i, 0)], np.nan)}
 
 
+def _threshold(curves: Mapping[str, Mapping[str, np.ndarray]], threshold_fraction: float, final_window: int) -> float:
+    """``threshold_fraction`` x scratch's final value of the metric (mean over its seeds of the
+    last ``final_window`` iterations)."""
+    return float(threshold_fraction * curves["scratch"]["metric"][:, -final_window:].mean())
+
+
 def _compare(scratch: Mapping[str, np.ndarray], other: Mapping[str, np.ndarray]) -> dict[str, Any]:
     """Savings of ``other`` against ``scratch``, per paired seed (the seed ids both ran), over the
     seeds where both reached; ``other``'s own steps over all of its seeds."""
-    common, i_s, i_o = np.intersect1d(scratch["seeds"], other["seeds"], return_indices=True)
+    _, i_s, i_o = np.intersect1d(scratch["seeds"], other["seeds"], return_indices=True)
     s_steps, o_steps = scratch["steps"][i_s], other["steps"][i_o]
     both = np.isfinite(s_steps) & np.isfinite(o_steps)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -116,7 +122,7 @@ def robot_row(
                          f"(Table IV needs 'scratch'" + (f" and the transfer preset {transfer_preset!r})"
                                                          if require_transfer else ")"))
     final = {name: c["reward"][:, -final_window:].mean(axis=1) for name, c in curves.items()}
-    threshold = float(threshold_fraction * curves["scratch"]["metric"][:, -final_window:].mean())
+    threshold = _threshold(curves, threshold_fraction, final_window)
     ran = transfer_preset in curves
     out: dict[str, Any] = {
         "experiment": experiment, "source": source, "target": target, "transfer_preset": transfer_preset,
@@ -260,7 +266,7 @@ def variant_rows(source: str, target: str, rows: Sequence[Mapping[str, Any]], th
     if "scratch" not in curves:
         raise ValueError(f"{source} -> {target}: no metrics for preset 'scratch' (the baseline every saving is "
                          f"measured against); presets present: {sorted(curves)}")
-    threshold = float(threshold_fraction * curves["scratch"]["metric"][:, -final_window:].mean())
+    threshold = _threshold(curves, threshold_fraction, final_window)
     times = {name: _time_to(c, threshold) for name, c in curves.items()}
     out = []
     for name in ["scratch"] + sorted(p for p in curves if p != "scratch"):
