@@ -175,7 +175,7 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
         notes.append(interpolated_times_note(progress.spread_over))
     initial = None
     if cfg.report.zero_shot_check and (cfg.trains_source or cfg.source_checkpoint or cfg.init_checkpoint):
-        initial = jax.device_get(program.initial_targets(state))
+        initial = jax.device_get(program.initial_weights(state))
     result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start, initial,
                           checker=checker)
     (run_dir / RESUME_STATE).unlink(missing_ok=True)  # finished: the final checkpoints replace it

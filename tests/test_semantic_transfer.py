@@ -352,7 +352,7 @@ class TestTransferTool:
         start = load_init_target(cfg, program)
         state = jax.eval_shape(program.init, jax.random.PRNGKey(0), None, start)  # the run's own check
         assert state.init_target["params"]["actor"]["layer_0"]["w"].shape == (705, 512)
-        first = program.initial_targets(jax.jit(program.init)(jax.random.PRNGKey(0), None, start))["xbot_l"]
+        first = program.start_weights(jax.random.PRNGKey(0), None, start)["xbot_l"]
         assert np.array_equal(first.params["actor"]["layer_0"]["w"][0, 0], ckpt["params"]["actor"]["layer_0"]["w"])
         assert not np.array_equal(first.params["actor"]["layer_0"]["w"][1, 0], ckpt["params"]["actor"]["layer_0"]["w"])
 
@@ -370,7 +370,7 @@ class TestTransferTool:
         cfg = load_experiment("go2_to_a1", ["scale=smoke", f"source_checkpoint={src}", "engine=mujoco",
                                             "freeze_presets=[L2@semantic,L2@semantic_actor,L2]"])
         program = make_program(cfg)
-        first = program.initial_targets(jax.jit(program.init)(jax.random.PRNGKey(0), load_source_params(cfg, program)))
+        first = program.start_weights(jax.random.PRNGKey(0), load_source_params(cfg, program))
         params, norm = first["a1"].params, first["a1"].normalizer
         pick = lambda tree, p: jax.tree.map(lambda x: np.asarray(x[p]), tree)  # noqa: E731
         same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
@@ -398,3 +398,34 @@ class TestTransferTool:
                               "joint_map=[FL_hip_joint:FL_hipp_joint]"]) == 2
         assert "did you mean 'FL_hip_joint'" in capsys.readouterr().err
         assert not (tmp_path / "x.npz").exists()
+
+
+@pytest.mark.slow  # compiles a whole target program (about a minute on 2 cores)
+def test_initial_weights_are_bitwise_those_the_target_stage_starts_from(tmp_path):
+    """``Program.start_weights`` (the zero-shot checks' weights, computed without env states)
+    against the target states the program builds when its target stage starts: every variant,
+    every seed, params and normaliser."""
+    from ptrl_jax.io.overrides import load_experiment
+    from ptrl_jax.core.program import make_program
+
+    from ptrl_jax.io import artifacts
+    from ptrl_jax.io.checkpoints import load_source_params
+
+    params, norm, _, _ = random_agent(jax.random.PRNGKey(3), envs.make("go2"), NetworkConfig())
+    src = tmp_path / "go2.npz"
+    norm = {k: {"mean": np.asarray(v.mean), "m2": np.asarray(v.m2), "count": np.asarray(v.count)} for k, v in norm.items()}
+    artifacts.save_checkpoint(src, params, norm, jax.tree.map(lambda p: np.zeros(p.shape, bool), params),
+                              {"robot": "go2", "stage": "source"})
+    cfg = load_experiment("go2_to_a1", ["scale=smoke", "engine=mujoco", "seeds=2", f"source_checkpoint={src}",
+                                        "report.zero_shot_check=false",
+                                        "freeze_presets=[L2,L2@semantic,L2@semantic_actor,scratch]"])
+    program = make_program(cfg)
+    source = load_source_params(cfg, program)
+    key = jax.random.PRNGKey(7)
+    started = jax.jit(program.advance)(jax.jit(program.init)(key, source), jnp.int32(0))
+    assert bool(started.targets_started) and int(started.targets["a1"].iteration.max()) == 0
+    weights = program.start_weights(key, source)["a1"]
+    same = jax.tree.map(np.array_equal, (weights.params, weights.normalizer),
+                        (started.targets["a1"].params, started.targets["a1"].normalizer))
+    assert all(jax.tree.leaves(same))
+    assert all(jax.tree.leaves(jax.tree.map(np.array_equal, program.initial_weights(started)["a1"], weights)))

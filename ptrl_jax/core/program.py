@@ -65,6 +65,15 @@ class ProgramOutput(NamedTuple):
     """Per target robot: leaves shaped [presets, seeds, iterations]."""
 
 
+class TargetStart(NamedTuple):
+    """What the transfer gives one target robot's runs before any fine-tuning: leaves shaped
+    [presets, seeds, ...]. The weights of ``ProgramState.targets`` when the target stage starts,
+    without the env states (for zero-shot evaluations, which need only the policies)."""
+
+    params: Any
+    normalizer: Any
+
+
 class Program(NamedTuple):
     init: Callable[..., ProgramState]
     """``init(key, source=None, init_target=None)``: the initial state (jit it). ``source``,
@@ -79,10 +88,13 @@ class Program(NamedTuple):
     target_trainers: dict[str, Trainer]
     source_env: Any
     target_envs: dict[str, Any]
-    initial_targets: Callable[[ProgramState], dict[str, TrainState]]
-    """``initial_targets(state)``: the target states as the transfer left them, before any
-    fine-tuning (recomputed from the state's source, key and init checkpoint; for zero-shot
-    evaluations)."""
+    initial_weights: Callable[[ProgramState], dict[str, TargetStart]]
+    """``initial_weights(state)``: per target robot, the weights as the transfer left them, before
+    any fine-tuning (recomputed from the state's source, key and init checkpoint; bitwise the
+    weights the target stage started from). It resets no env, so it compiles in seconds."""
+    start_weights: Callable[..., dict[str, TargetStart]]
+    """``start_weights(key, source=None, init_target=None)``: ``initial_weights`` of the state
+    ``init`` would build, for a config that trains no source (tests and tools)."""
     transfer_maps: dict[str, Any]
     """Per target robot: its ``semantic.TransferMap`` from the source (only when a variant
     transfers semantically)."""
@@ -144,35 +156,41 @@ def make_program(
         hparams = cfg.target.ppo.hparams()
 
         def one_target(seed_key, mode, mask, run_id):
-            init_k, train_k = jax.random.split(seed_key)
-            fresh = target.init_params(init_k)
-            if init_target is not None:  # init_checkpoint: every transferring variant starts from it
-                pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(mode > 0, x, y), a, b)  # noqa: E731
-                fresh_norm = {k: normalization.init(n) for k, n in target.observation_sizes.items()}
-                return target.init(train_k, hparams, mask, pick(init_target["params"], fresh), run_id,
-                                   pick(init_target["normalizer"], fresh_norm))
-            params = transfer(source["params"], fresh, mode == 1)
-            if not cfg.semantic:  # static: programs without a semantic variant are unchanged
-                return target.init(train_k, hparams, mask, params, run_id)
-            fresh_norm = {k: normalization.init(n) for k, n in target.observation_sizes.items()}
-            sem_params, sem_norm = semantic.apply(transfer_maps[robot], source["params"], source["normalizer"],
-                                                  fresh, fresh_norm, cfg.transfer.noise_std)
-            if 3 in modes:  # semantic_actor: the mapped actor with the fresh critic
-                sem_params = {**sem_params, "critic": jax.tree.map(
-                    lambda a, b: jnp.where(mode == 3, a, b), fresh["critic"], sem_params["critic"])}
-            is_sem = mode >= 2
-            params = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_params, params)
-            norm = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_norm, fresh_norm)
+            train_k, params, norm = target_weights(target, robot, source, seed_key, mode, init_target)
             return target.init(train_k, hparams, mask, params, run_id, norm)
 
         over_seeds = jax.vmap(one_target, in_axes=(0, None, None, 0))
         return jax.vmap(over_seeds, in_axes=(None, 0, 0, 0))(seed_keys, mode_ids, masks, run_ids)
 
-    @jax.jit  # traced once: init's eval_shape and advance's transfer share the trace
-    def init_targets(source, target_key, init_target=None) -> dict[str, TrainState]:
+    def target_weights(target: Trainer, robot: str, source, seed_key, mode, init_target=None):
+        """One run's start: (its training key, params, normaliser) for variant ``mode``."""
+        init_k, train_k = jax.random.split(seed_key)
+        fresh = target.init_params(init_k)
+        fresh_norm = {k: normalization.init(n) for k, n in target.observation_sizes.items()}
+        if init_target is not None:  # init_checkpoint: every transferring variant starts from it
+            pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(mode > 0, x, y), a, b)  # noqa: E731
+            return train_k, pick(init_target["params"], fresh), pick(init_target["normalizer"], fresh_norm)
+        params = transfer(source["params"], fresh, mode == 1)
+        if not cfg.semantic:  # static: programs without a semantic variant are unchanged
+            return train_k, params, fresh_norm
+        sem_params, sem_norm = semantic.apply(transfer_maps[robot], source["params"], source["normalizer"],
+                                              fresh, fresh_norm, cfg.transfer.noise_std)
+        if 3 in modes:  # semantic_actor: the mapped actor with the fresh critic
+            sem_params = {**sem_params, "critic": jax.tree.map(
+                lambda a, b: jnp.where(mode == 3, a, b), fresh["critic"], sem_params["critic"])}
+        is_sem = mode >= 2
+        params = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_params, params)
+        norm = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_norm, fresh_norm)
+        return train_k, params, norm
+
+    def robot_keys(target_key) -> list:
         # The first target robot uses target_key itself (a single-target program is unchanged by
         # the multi-target generalisation); further robots fold in their index.
-        keys = [target_key] + [jax.random.fold_in(target_key, i) for i in range(1, len(targets))]
+        return [target_key] + [jax.random.fold_in(target_key, i) for i in range(1, len(targets))]
+
+    @jax.jit  # traced once: init's eval_shape and advance's transfer share the trace
+    def init_targets(source, target_key, init_target=None) -> dict[str, TrainState]:
+        keys = robot_keys(target_key)
         return {r: init_robot_targets(t, r, i, source, keys[i], init_target)
                 for i, (r, t) in enumerate(targets.items())}
 
@@ -249,8 +267,32 @@ def make_program(
     def run(key: jax.Array) -> ProgramOutput:
         return Program.output(advance(init(key), jnp.int32(n_source + n_target)))
 
-    def initial_targets(state: ProgramState) -> dict[str, TrainState]:
-        source_now = {"params": state.source.params, "normalizer": state.source.normalizer}
-        return init_targets(source_now, state.target_key, state.init_target)
+    @jax.jit
+    def weights_from(source_now, target_key, init_target=None) -> dict[str, TargetStart]:
+        mode_ids = jnp.array(modes, jnp.int32)
+        out = {}
+        for (robot, target), key in zip(targets.items(), robot_keys(target_key)):
+            def weights(seed_key, mode, target=target, robot=robot):
+                return target_weights(target, robot, source_now, seed_key, mode, init_target)[1:]
+            over_seeds = jax.vmap(weights, in_axes=(0, None))
+            out[robot] = TargetStart(*jax.vmap(over_seeds, in_axes=(None, 0))(jax.random.split(key, n_seeds), mode_ids))
+        return out
 
-    return Program(init, advance, run, source, targets, source_env, target_envs, initial_targets, transfer_maps)
+    def initial_weights(state: ProgramState) -> dict[str, TargetStart]:
+        source_now = {"params": state.source.params, "normalizer": state.source.normalizer}
+        return weights_from(source_now, state.target_key, state.init_target)
+
+    def start_weights(key: jax.Array, source_ckpt=None, init_target=None) -> dict[str, TargetStart]:
+        """What ``initial_weights(init(key, source_ckpt, init_target))`` gives when no source is
+        trained (the source from its checkpoint, or none), without building env states."""
+        if n_source:
+            raise ValueError("start_weights: the config trains its source; the targets start from the trained one")
+        source_key, target_key = jax.random.split(key)
+        init_key, _ = jax.random.split(source_key)
+        if source_ckpt is None:
+            source_ckpt = {"params": source.init_params(init_key),
+                           "normalizer": {k: normalization.init(n) for k, n in source.observation_sizes.items()}}
+        return weights_from(source_ckpt, target_key, init_target)
+
+    return Program(init, advance, run, source, targets, source_env, target_envs, initial_weights, start_weights,
+                   transfer_maps)

@@ -55,7 +55,7 @@ def save_outputs(
     cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput, times: dict, extra_notes=(), stage_start=None,
     initial: dict | None = None, checker: Callable[[dict], list] | None = None,
 ) -> dict:
-    """Every file of the run folder. ``initial``: ``Program.initial_targets`` of the final state,
+    """Every file of the run folder. ``initial``: ``Program.initial_weights`` of the final state,
     for the zero-shot walking checks (none without it), which ``checker(policy) -> verdicts``
     runs (``ptrl_jax.run`` passes the family's walking check in MuJoCo C)."""
     rows = metric_rows(cfg, out, times, stage_start)
@@ -124,7 +124,7 @@ def zero_shot_rows(cfg: ExperimentConfig, robot: str, rows, initial: Any,
     """Per distinct initialisation of ``robot``'s targets (scratch, paper, semantic, init
     checkpoint: the first variant of each): the first rollout's mean reward per env step over
     seeds (the policy before any update acted in it, with its exploration noise), and with
-    ``initial`` (``Program.initial_targets``' states of the robot) the family's walking check
+    ``initial`` (``Program.initial_weights`` of the robot) the family's walking check
     of seed 0's deterministic policy, run by ``checker(policy) -> verdicts`` (required with
     ``initial``)."""
     if initial is not None and checker is None:
