@@ -85,6 +85,13 @@ class CommandConfig:
     curriculum_threshold: float = 0.8
     """The mean per-step ``tracking_lin_vel`` kernel (exp of the squared planar velocity error,
     1 at perfect tracking) an episode must reach to raise its env's level (legged_gym's 0.8)."""
+    curriculum_update: str = "episode"
+    """When the level moves. ``episode``: only where an episode ends, judged on the whole
+    episode's mean kernel (once most envs survive whole episodes they end together, every
+    ``episode_length_s``). ``resample``: also at every command resample within an episode
+    (``resample_time_s``), judged on the mean kernel since the last resample, so the level can
+    rise once per command; the level reached is drawn from at once, a fall still lowers it at the
+    episode end, and a time-out is judged on its last command period."""
 
     def __post_init__(self):
         for name in ("curriculum_start", "curriculum_step", "curriculum_threshold"):
@@ -94,6 +101,8 @@ class CommandConfig:
             lo, hi = getattr(self, name)
             if lo > hi:
                 raise ValueError(f"commands.{name}: low {lo} > high {hi}")
+        if self.curriculum_update not in ("episode", "resample"):
+            raise ValueError(f"commands.curriculum_update must be 'episode' or 'resample', got {self.curriculum_update!r}")
         if not 0.0 <= self.zero_share <= 1.0:
             raise ValueError(f"commands.zero_share must lie in [0, 1], got {self.zero_share}")
         if self.resample_time_s <= 0:
@@ -383,6 +392,17 @@ class LeggedEnv(PipelineEnv):
         moved = level + c.curriculum_step * (up.astype(jnp.float32) - fell.astype(jnp.float32))
         return jnp.clip(moved, c.curriculum_start, 1.0).astype(jnp.float32)
 
+    def curriculum_steps(self, step: jax.Array) -> jax.Array:
+        """The steps ``tracking_sum`` covers at episode step ``step`` (1, 2, ...): the whole
+        episode, or with ``curriculum_update=resample`` the steps since the last resample."""
+        if self.config.commands.curriculum_update == "episode":
+            return step
+        return (step - 1) % self._resample_steps + 1
+
+    @property
+    def _resample_steps(self) -> int:
+        return int(round(self.config.commands.resample_time_s / self.config.ctrl_dt))
+
     def _fresh_info(self, data, rng: jax.Array, level: jax.Array | None = None) -> dict:
         """A new episode's info; ``level``: the env's curriculum level (``curriculum_start``
         when None; read only with ``commands.curriculum``)."""
@@ -523,8 +543,18 @@ class LeggedEnv(PipelineEnv):
         # Commands are resampled on a fixed period within an episode.
         rng, k_cmd, k_reset = jax.random.split(info["rng"], 3)
         info["rng"] = rng
-        resample = (info["step"] % int(round(cfg.commands.resample_time_s / cfg.ctrl_dt))) == 0
+        resample = (info["step"] % self._resample_steps) == 0
         level = info.get("command_level", 1.0)
+        c = cfg.commands
+        if c.curriculum and c.curriculum_update == "resample":  # static
+            # A resample within the episode judges the command period that ends here; the level
+            # it reaches is the one the next command is drawn from. Episode ends are step()'s.
+            within = resample & ~termination & ~truncation
+            period_mean = info["tracking_sum"] / self.curriculum_steps(info["step"])
+            up = within & (period_mean >= c.curriculum_threshold)
+            level = jnp.clip(level + c.curriculum_step * up.astype(jnp.float32), c.curriculum_start, 1.0)
+            info["command_level"] = level.astype(jnp.float32)
+            info["tracking_sum"] = jnp.where(within, 0.0, info["tracking_sum"]).astype(jnp.float32)
         info["command"] = jnp.where(resample, self.sample_command(k_cmd, level), info["command"])
         info["truncation"] = truncation.astype(jnp.float32)
         info["termination"] = termination.astype(jnp.float32)
@@ -545,8 +575,8 @@ class LeggedEnv(PipelineEnv):
         )
         level = None
         if self.config.commands.curriculum:  # the ended episode moves its env's level
-            level = self.next_command_level(t.info["command_level"], t.info["tracking_sum"], t.info["step"],
-                                            t.termination, t.truncation)
+            level = self.next_command_level(t.info["command_level"], t.info["tracking_sum"],
+                                            self.curriculum_steps(t.info["step"]), t.termination, t.truncation)
         reset_info = self._fresh_info(reset_data, t.reset_key, level)
         reset_obs, reset_info = self._observe(reset_data, reset_info)
         for k in ("truncation", "termination", "nonfinite"):

@@ -359,6 +359,49 @@ class TestCommandCurriculum:
         assert float(out.info["termination"]) == 1.0
         assert float(out.info["command_level"]) == pytest.approx(0.5)  # a fall: down one step
 
+    def test_with_resample_updates_the_level_rises_within_the_episode(self):
+        """``curriculum_update=resample``: a resample mid-episode judges the command period that
+        ends there (up on a mean kernel >= the threshold, else it stays), resets the sum and draws
+        the next command at the new level; a time-out is judged on its last period alone."""
+        env = self.env(engine="mujoco", curriculum_start=0.3, curriculum_step=0.1, curriculum_update="resample")
+        episode_env = self.env(engine="mujoco", curriculum_start=0.3, curriculum_step=0.1)
+        r = int(round(env.config.commands.resample_time_s / env.config.ctrl_dt))
+        n = env.config.episode_steps
+        assert n % r == 0 and n // r == 2  # Go2: 20 s episodes, a command every 10 s
+        zero = jnp.zeros(env.action_size)
+        step = jax.jit(env.step)
+        s = jax.jit(env.reset)(jax.random.PRNGKey(0))
+        at = lambda k, total, level=0.3: s.replace(info={  # noqa: E731
+            **s.info, "step": jnp.asarray(k, jnp.int32), "tracking_sum": jnp.asarray(total, jnp.float32),
+            "command_level": jnp.asarray(level, jnp.float32)})
+
+        good = step(at(r - 1, 0.9 * r), zero)  # the first command period tracked at about 0.9
+        assert float(good.done) == 0.0 and int(good.info["step"]) == r
+        assert float(good.info["command_level"]) == pytest.approx(0.4)
+        assert float(good.info["tracking_sum"]) == 0.0
+        assert not np.array_equal(np.asarray(good.info["command"]), np.asarray(s.info["command"]))
+        assert np.all(np.abs(np.asarray(good.info["command"])) <= 0.4 + 1e-6)  # drawn at the new level
+
+        poor = step(at(r - 1, 0.5 * r), zero)
+        assert float(poor.info["command_level"]) == pytest.approx(0.3) and float(poor.info["tracking_sum"]) == 0.0
+
+        # The same state under the episode rule: nothing moves until the episode ends.
+        kept = jax.jit(episode_env.step)(at(r - 1, 0.9 * r), zero)
+        assert float(kept.info["command_level"]) == pytest.approx(0.3)
+        assert float(kept.info["tracking_sum"]) > 0.9 * r
+
+        # A time-out whose last period (r steps) tracked at about 0.9: up under the resample rule;
+        # the episode rule divides the same sum by the whole episode (2r steps, 0.45) and stays.
+        out = step(at(n - 1, 0.9 * r, 0.5), zero)
+        assert float(out.info["truncation"]) == 1.0 and float(out.info["command_level"]) == pytest.approx(0.6)
+        assert float(jax.jit(episode_env.step)(at(n - 1, 0.9 * r, 0.5), zero).info["command_level"]) == pytest.approx(0.5)
+
+    def test_an_unknown_update_rule_is_refused(self):
+        import envs
+
+        with pytest.raises(ValueError, match="curriculum_update must be 'episode' or 'resample', got 'weekly'"):
+            dataclasses.replace(envs.default_config("go2").commands, curriculum_update="weekly")
+
     def test_a_family_without_the_tracking_term_is_refused(self):
         import envs
 
