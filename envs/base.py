@@ -269,7 +269,9 @@ class LeggedEnv(PipelineEnv):
         self._joint_upper = jnp.asarray(hi, jnp.float32)
         self._base_body = int(mj_model.jnt_bodyid[0])  # the free joint's body
         self._stepper = MujocoStepper(mj_model, self._base_body) if config.engine == "mujoco" else None
-        self._reward_weights: Mapping[str, float] = dataclasses.asdict(config.rewards)  # type: ignore[attr-defined]
+        # A family may offer several reward sets (the biped's reward_set); the chosen one's weights.
+        rewards = config.active_rewards if hasattr(config, "active_rewards") else config.rewards  # type: ignore
+        self._reward_weights: Mapping[str, float] = dataclasses.asdict(rewards)
         if config.commands.curriculum and "tracking_lin_vel" not in self._reward_weights:
             raise ValueError(f"commands.curriculum reads the tracking_lin_vel reward term, which {config.asset}'s "
                              f"rewards do not have (terms: {sorted(self._reward_weights)})")

@@ -17,6 +17,7 @@ and both legs stand while |s| < 0.1 (double support).
 Rewards: humanoid-gym's XBot-L terms (see ``BipedRewards``), except ``feet_contact_forces``
 and ``collision``, which need contact forces / collision geometry we leave out for MJX speed
 (documented in the README). Foot contact is geometric: sole height below ``contact_height``.
+``reward_set=point_foot`` pays tron1-rl-isaacgym's terms instead (``PointFootRewards``), TRON1's own.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from dataclasses import dataclass, field
 import jax
 import jax.numpy as jnp
 from brax import math
+from jax.scipy.stats import norm
 
 from envs import semantics
 from envs.base import CommandConfig, LeggedEnv, LocomotionConfig
@@ -78,6 +80,70 @@ class BipedRewards:
     """|qddot|^2."""
 
 
+# Constants of tron1-rl-isaacgym's pointfoot_flat rewards (limxdynamics/tron1-rl-isaacgym d26da7f,
+# envs/pointfoot_flat/pointfoot_flat_config.py: rewards.*).
+POINT_FOOT_LIN_SIGMA = 0.2  # tracking_sigma: exp(-error^2 / sigma)
+POINT_FOOT_ANG_SIGMA = 0.25  # ang_tracking_sigma
+POINT_FOOT_GAIT_VEL_SIGMA = 0.25  # gait_vel_sigma, m^2/s^2
+POINT_FOOT_KAPPA = 0.05  # kappa_gait_probs: width of the smoothed contact schedule, in cycles
+POINT_FOOT_LANDING_HEIGHT = 0.08  # about_landing_threshold, m
+POINT_FOOT_SOFT_LIMIT = 0.95  # soft_dof_pos_limit: share of each joint range before the penalty
+
+
+@dataclass(frozen=True)
+class PointFootRewards:
+    """tron1-rl-isaacgym's pointfoot_flat reward weights (times the policy dt), paid with
+    ``reward_set=point_foot``. Its gait clock is this family's (fixed ``cycle_time``, the left
+    foot's stance in the first half of each cycle, the right's in the second; the source draws
+    a frequency in 1.5-2.5 Hz per episode). Left out: ``collision`` (knee and hip contact forces),
+    and the source's clipping of each weighted term to +-5 and of the sum to +-100."""
+
+    keep_balance: float = 1.0
+    """1 per step alive."""
+    tracking_lin_vel: float = 1.0
+    """exp(-|v_xy^cmd - v_xy|^2 / 0.2)."""
+    tracking_ang_vel: float = 0.5
+    """exp(-(w_z^cmd - w_z)^2 / 0.25)."""
+    base_height: float = -2.0
+    """(h - base_height_target)^2, h the base height above the flat ground."""
+    lin_vel_z: float = -0.5
+    """v_z^2."""
+    ang_vel_xy: float = -0.05
+    """|w_xy|^2."""
+    torques: float = -8e-5
+    """|tau|^2."""
+    dof_acc: float = -2.5e-7
+    """|qddot|^2."""
+    action_rate: float = -0.01
+    """|a - a'|^2."""
+    action_smooth: float = -0.01
+    """|a - 2a' + a''|^2 (the actions' curvature)."""
+    dof_pos_limits: float = -2.0
+    """How far each joint is beyond 95 % of its range (about its centre), summed."""
+    orientation: float = -10.0
+    """|g_xy|^2 of the projected gravity."""
+    feet_distance: float = -100.0
+    """clip(min_feet_distance - d_feet,xy, 0, 1)."""
+    feet_regulation: float = -0.05
+    """sum_feet exp(-h_foot / (0.001 base_height_target)) |v_foot,xy|^2: no sliding near the ground."""
+    foot_landing_vel: float = -0.15
+    """sum_feet v_foot,z^2 for a foot in the air, under 8 cm and descending."""
+    tracking_contacts_shaped_force: float = -2.0
+    """mean_feet (1 - desired contact) (1 - exp(-F^2 / 25)): force in the desired swing. The foot's
+    geometric contact stands for the force factor (it is 1 within 0.2 % above 13 N)."""
+    tracking_contacts_shaped_vel: float = -2.0
+    """mean_feet desired contact (1 - exp(-|v_foot|^2 / 0.25)): foot speed in the desired stance."""
+
+
+def smoothed_stance(phase: jax.Array) -> jax.Array:
+    """The desired contact of a foot whose stance is the first half of each gait cycle: the
+    source's Normal(0, kappa) CDF smoothing of the schedule (1 in stance, 0 in swing, 0.5 at the
+    switches). ``phase`` in cycles, any real."""
+    x = jnp.mod(phase, 1.0)
+    cdf = lambda t: norm.cdf(t, scale=POINT_FOOT_KAPPA)  # noqa: E731
+    return cdf(x) * (1.0 - cdf(x - 0.5)) + cdf(x - 1.0) * (1.0 - cdf(x - 1.5))
+
+
 @dataclass(frozen=True)
 class BipedConfig(LocomotionConfig):
     """A biped: ``LocomotionConfig`` plus gait and foot settings."""
@@ -115,8 +181,26 @@ class BipedConfig(LocomotionConfig):
     knee_bodies: tuple[str, str] = ("left_knee_link", "right_knee_link")
     """Bodies whose origins are the knees (for knee_distance)."""
     rewards: BipedRewards = field(default_factory=BipedRewards)
-    """Reward weights."""
+    """Reward weights of ``reward_set=humanoid_gym``."""
+    reward_set: str = "humanoid_gym"
+    """The terms the env pays: ``humanoid_gym`` (``rewards``, humanoid-gym's XBot-L set, the
+    family's) or ``point_foot`` (``point_foot_rewards``, tron1-rl-isaacgym's pointfoot_flat set,
+    written for TRON1; that source also pays negative rewards: set ``only_positive_rewards=false``)."""
+    point_foot_rewards: PointFootRewards = field(default_factory=PointFootRewards)
+    """Reward weights of ``reward_set=point_foot``."""
 
+    def __post_init__(self):
+        super().__post_init__()
+        if self.reward_set not in REWARD_SETS:
+            raise ValueError(f"reward_set must be one of {REWARD_SETS}, got {self.reward_set!r}")
+
+    @property
+    def active_rewards(self):
+        """The weights of the chosen ``reward_set``."""
+        return self.point_foot_rewards if self.reward_set == "point_foot" else self.rewards
+
+
+REWARD_SETS = ("humanoid_gym", "point_foot")
 
 # humanoid-gym XBotLCfg's command ranges, used for every biped (the checks are at vx 0 and 0.3).
 BIPED_COMMANDS = CommandConfig(
@@ -380,6 +464,8 @@ class BipedEnv(LeggedEnv):
 
     # ----- rewards --------------------------------------------------------------------------------
     def _reward_terms(self, data, action, info, features):
+        if self.config.reward_set == "point_foot":  # static
+            return self._point_foot_terms(data, action, info, features)
         cfg = self.config
         cmd = info["command"]
         v, w = self.base_lin_vel(data), self.base_ang_vel(data)
@@ -449,6 +535,52 @@ class BipedEnv(LeggedEnv):
             "torques": jnp.sum(tau**2),
             "dof_vel": jnp.sum(qd**2),
             "dof_acc": jnp.sum(((qd - info["last_joint_vel"]) / cfg.ctrl_dt) ** 2),
+        }
+
+    def _point_foot_terms(self, data, action, info, features):
+        """``PointFootRewards``' terms (tron1-rl-isaacgym's ``_reward_*``), on flat ground."""
+        cfg = self.config
+        cmd = info["command"]
+        v, w = self.base_lin_vel(data), self.base_ang_vel(data)
+        g = self.projected_gravity(data)
+        q, qd = self.joint_pos(data), self.joint_vel(data)
+        tau = self.pd_torque(data, self.joint_targets(action)) - self._kd * qd
+        contact = features["contact"].astype(jnp.float32)
+        foot_pos = data.site_xpos[self._foot_sites]
+        valid_history = info["step"] > 1  # finite differences need one step of this episode
+        foot_vel = jnp.where(valid_history, (foot_pos - info["last_foot_pos"]) / cfg.ctrl_dt, 0.0)
+        foot_height = jnp.clip(foot_pos[:, 2], 0.0, 1.0)  # the sites are at the soles
+
+        phase = self.phase(info)
+        desired = jnp.stack([smoothed_stance(phase), smoothed_stance(phase + 0.5)])
+
+        centre, half = (self._joint_upper + self._joint_lower) / 2, (self._joint_upper - self._joint_lower) / 2
+        lower, upper = centre - POINT_FOOT_SOFT_LIMIT * half, centre + POINT_FOOT_SOFT_LIMIT * half
+        beyond = jnp.clip(lower - q, 0.0, None) + jnp.clip(q - upper, 0.0, None)
+
+        landing = (foot_height < POINT_FOOT_LANDING_HEIGHT) & (contact == 0.0) & (foot_vel[:, 2] < 0.0)
+        a, a1, a2 = action, info["last_action"], info["last_last_action"]
+        feet_dist = jnp.linalg.norm(foot_pos[0, :2] - foot_pos[1, :2])
+        return {
+            "keep_balance": jnp.ones(()),
+            "tracking_lin_vel": jnp.exp(-jnp.sum((cmd[:2] - v[:2]) ** 2) / POINT_FOOT_LIN_SIGMA),
+            "tracking_ang_vel": jnp.exp(-((cmd[2] - w[2]) ** 2) / POINT_FOOT_ANG_SIGMA),
+            "base_height": (data.qpos[2] - cfg.base_height_target) ** 2,
+            "lin_vel_z": v[2] ** 2,
+            "ang_vel_xy": jnp.sum(w[:2] ** 2),
+            "torques": jnp.sum(tau**2),
+            "dof_acc": jnp.sum(((qd - info["last_joint_vel"]) / cfg.ctrl_dt) ** 2),
+            "action_rate": jnp.sum((a - a1) ** 2),
+            "action_smooth": jnp.sum((a - 2.0 * a1 + a2) ** 2),
+            "dof_pos_limits": jnp.sum(beyond),
+            "orientation": jnp.sum(g[:2] ** 2),
+            "feet_distance": jnp.clip(cfg.min_feet_distance - feet_dist, 0.0, 1.0),
+            "feet_regulation": jnp.sum(jnp.exp(-foot_height / (0.001 * cfg.base_height_target))
+                                       * jnp.sum(foot_vel[:, :2] ** 2, axis=-1)),
+            "foot_landing_vel": jnp.sum(jnp.where(landing, foot_vel[:, 2] ** 2, 0.0)),
+            "tracking_contacts_shaped_force": jnp.mean((1.0 - desired) * contact),
+            "tracking_contacts_shaped_vel": jnp.mean(
+                desired * (1.0 - jnp.exp(-jnp.sum(foot_vel**2, axis=-1) / POINT_FOOT_GAIT_VEL_SIGMA))),
         }
 
     def _after_step_info(self, data, info, features):

@@ -415,3 +415,89 @@ class TestCommandCurriculum:
         object.__setattr__(bad, "rewards", NoTracking())
         with pytest.raises(ValueError, match="commands.curriculum reads the tracking_lin_vel reward term"):
             envs.make("go2", bad)
+
+
+class TestPointFootRewards:
+    """TRON1's own terms (``reward_set=point_foot``, after tron1-rl-isaacgym's pointfoot_flat) on
+    one hand-built state: a base at 0.71 m moving (0.3, 0.1, 0.2) m/s and turning (0.1, -0.2,
+    0.1) rad/s under the command (0.5, 0, 0.4), the left foot 3 cm up and 5 cm from the right,
+    at a quarter of the gait cycle (left stance desired, right swing)."""
+
+    @pytest.fixture(scope="class")
+    def case(self):
+        import envs
+
+        cfg = dataclasses.replace(envs.default_config("tron1"), reward_set="point_foot", engine="mujoco")
+        env = envs.make("tron1", cfg)
+        s = jax.jit(env.reset)(jax.random.PRNGKey(0))
+        data = s.pipeline_state
+        n = env.num_joints
+        q = np.asarray(env._default_joints).copy()  # noqa: SLF001
+        upper, lower = np.asarray(env._joint_upper), np.asarray(env._joint_lower)  # noqa: SLF001
+        q[0] = upper[0]  # joint 0 at its hard limit: 5 % of its half range beyond the soft one
+        qpos = data.qpos.at[:3].set(jnp.array([0.0, 0.0, 0.71])).at[3:7].set(jnp.array([1.0, 0, 0, 0]))
+        qpos = qpos.at[7:].set(jnp.asarray(q))
+        qvel = jnp.zeros_like(data.qvel).at[:6].set(jnp.array([0.3, 0.1, 0.2, 0.1, -0.2, 0.1]))
+        feet = jnp.array([[0.0, 0.05, 0.03], [0.0, 0.0, 0.0]])
+        sites = data.site_xpos.at[env._foot_sites].set(feet)  # noqa: SLF001
+        data = data.replace(qpos=qpos, qvel=qvel, site_xpos=sites)
+        dt = cfg.ctrl_dt
+        step = int(round(0.25 * cfg.cycle_time / dt))
+        assert step * dt / cfg.cycle_time == pytest.approx(0.25)
+        info = {**s.info, "command": jnp.array([0.5, 0.0, 0.4]), "step": jnp.asarray(step, jnp.int32),
+                # last step the left foot was 1 cm behind and 2 mm higher, the right 2 mm behind
+                "last_foot_pos": feet - jnp.array([[0.01, 0.0, -0.002], [0.002, 0.0, 0.0]]),
+                "last_action": jnp.zeros(n).at[0].set(0.5), "last_last_action": jnp.zeros(n).at[0].set(0.5),
+                "last_joint_vel": jnp.zeros(n).at[1].set(1.0)}
+        action = jnp.zeros(n).at[0].set(1.0)
+        features = {"contact": jnp.array([False, True])}
+        terms = {k: float(v) for k, v in env._point_foot_terms(data, action, info, features).items()}  # noqa: SLF001
+        return env, terms, (upper[0] - lower[0]) / 2
+
+    def test_the_env_pays_the_point_foot_terms(self, case):
+        import envs
+        from envs.biped import PointFootRewards
+
+        env, terms, _ = case
+        names = tuple(f.name for f in dataclasses.fields(PointFootRewards))
+        assert env.reward_names == names and tuple(terms) == names
+        assert envs.make("tron1").reward_names[0] == "joint_pos"  # the default stays the family's set
+
+    def test_tracking_and_base_terms(self, case):
+        _, t, _ = case
+        assert t["keep_balance"] == 1.0
+        assert t["tracking_lin_vel"] == pytest.approx(np.exp(-(0.2**2 + 0.1**2) / 0.2), rel=1e-5)
+        assert t["tracking_ang_vel"] == pytest.approx(np.exp(-(0.3**2) / 0.25), rel=1e-5)
+        assert t["base_height"] == pytest.approx((0.71 - 0.81) ** 2, rel=1e-4)
+        assert t["lin_vel_z"] == pytest.approx(0.04, rel=1e-5)
+        assert t["ang_vel_xy"] == pytest.approx(0.05, rel=1e-5)
+        assert t["orientation"] == pytest.approx(0.0, abs=1e-12)
+
+    def test_action_joint_and_limit_terms(self, case):
+        _, t, half = case
+        assert t["action_rate"] == pytest.approx(0.25) and t["action_smooth"] == pytest.approx(0.25)
+        assert t["dof_acc"] == pytest.approx((1.0 / 0.02) ** 2, rel=1e-5)
+        assert t["dof_pos_limits"] == pytest.approx(0.05 * half, rel=1e-4)
+
+    def test_foot_terms(self, case):
+        _, t, _ = case
+        assert t["feet_distance"] == pytest.approx(0.115 - 0.05, rel=1e-5)
+        # left (0.5, 0, -0.1) m/s at 3 cm: exp(-0.03 / 0.00081) ~ 1e-16; right (0.1, 0, 0) at 0
+        assert t["feet_regulation"] == pytest.approx(0.01, rel=1e-4)
+        assert t["foot_landing_vel"] == pytest.approx(0.1**2, rel=1e-4)  # the left, descending under 8 cm
+        # at a quarter cycle the left is due in stance (1) and the right in swing (0)
+        assert t["tracking_contacts_shaped_force"] == pytest.approx(0.5, rel=1e-5)  # the right is down
+        assert t["tracking_contacts_shaped_vel"] == pytest.approx(0.5 * (1 - np.exp(-(0.26) / 0.25)), rel=1e-4)
+
+    def test_the_smoothed_schedule(self):
+        from envs.biped import smoothed_stance
+
+        got = np.asarray(smoothed_stance(jnp.array([0.0, 0.05, 0.25, 0.5, 0.75, 1.25, -0.75])))
+        # Normal(0, 0.05) CDF: 0.5 at a switch, Phi(1) = 0.8413 one kappa into stance, 1 and 0 mid-phase
+        np.testing.assert_allclose(got, [0.5, 0.841345, 1.0, 0.5, 0.0, 1.0, 1.0], atol=1e-5)
+
+    def test_an_unknown_reward_set_is_refused(self):
+        import envs
+
+        with pytest.raises(ValueError, match="reward_set must be one of \\('humanoid_gym', 'point_foot'\\), got 'tron'"):
+            dataclasses.replace(envs.default_config("tron1"), reward_set="tron")
