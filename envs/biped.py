@@ -23,6 +23,7 @@ and ``collision``, which need contact forces / collision geometry we leave out f
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -201,6 +202,31 @@ class BipedConfig(LocomotionConfig):
 
 
 REWARD_SETS = ("humanoid_gym", "point_foot")
+
+
+class RewardInputs(NamedTuple):
+    """The per-step quantities both reward sets read (``BipedEnv._reward_inputs``)."""
+
+    cmd: jax.Array
+    """The command (vx, vy, yaw rate)."""
+    v: jax.Array
+    """Base linear velocity, base frame."""
+    w: jax.Array
+    """Base angular velocity, base frame."""
+    g: jax.Array
+    """Projected gravity."""
+    q: jax.Array
+    """Joint positions."""
+    qd: jax.Array
+    """Joint velocities."""
+    tau: jax.Array
+    """PD torques of this step's action."""
+    foot_pos: jax.Array
+    """Sole sites, world frame, [2, 3]."""
+    foot_vel: jax.Array
+    """Their finite-difference velocities, [2, 3] (zero on an episode's first step)."""
+    valid_history: jax.Array
+    """Whether the finite differences span a step of this episode."""
 
 # humanoid-gym XBotLCfg's command ranges, used for every biped (the checks are at vx 0 and 0.3).
 BIPED_COMMANDS = CommandConfig(
@@ -463,20 +489,26 @@ class BipedEnv(LeggedEnv):
         return {"state": history.reshape(-1), "privileged_state": privileged}, info
 
     # ----- rewards --------------------------------------------------------------------------------
+    def _reward_inputs(self, data, action, info):
+        """What both reward sets read: command, base velocities (base frame), projected gravity,
+        joint positions and velocities, PD torques, foot positions and their finite-difference
+        velocities (zero on an episode's first step), and whether those differences are valid."""
+        qd = self.joint_vel(data)
+        tau = self.pd_torque(data, self.joint_targets(action)) - self._kd * qd
+        foot_pos = data.site_xpos[self._foot_sites]
+        valid_history = info["step"] > 1  # finite differences need one step of this episode
+        foot_vel = jnp.where(valid_history, (foot_pos - info["last_foot_pos"]) / self.config.ctrl_dt, 0.0)
+        return RewardInputs(info["command"], self.base_lin_vel(data), self.base_ang_vel(data),
+                            self.projected_gravity(data), self.joint_pos(data), qd, tau, foot_pos, foot_vel,
+                            valid_history)
+
     def _reward_terms(self, data, action, info, features):
         if self.config.reward_set == "point_foot":  # static
             return self._point_foot_terms(data, action, info, features)
         cfg = self.config
-        cmd = info["command"]
-        v, w = self.base_lin_vel(data), self.base_ang_vel(data)
-        g = self.projected_gravity(data)
-        q, qd = self.joint_pos(data), self.joint_vel(data)
-        tau = self.pd_torque(data, self.joint_targets(action)) - self._kd * qd
+        cmd, v, w, g, q, qd, tau, foot_pos, foot_vel, valid_history = self._reward_inputs(data, action, info)
         ref, stance, contact = features["reference"], features["stance"], features["contact"]
-        foot_pos = data.site_xpos[self._foot_sites]
-        valid_history = info["step"] > 1  # finite differences need one step of this episode
-        foot_speed = jnp.linalg.norm((foot_pos - info["last_foot_pos"])[:, :2], axis=-1) / cfg.ctrl_dt
-        foot_speed = jnp.where(valid_history, foot_speed, 0.0)
+        foot_speed = jnp.linalg.norm(foot_vel[:, :2], axis=-1)
 
         diff = jnp.linalg.norm(q - ref)
         joint_pos = jnp.exp(-2.0 * diff) - 0.2 * jnp.clip(diff, 0.0, 0.5)
@@ -540,15 +572,8 @@ class BipedEnv(LeggedEnv):
     def _point_foot_terms(self, data, action, info, features):
         """``PointFootRewards``' terms (tron1-rl-isaacgym's ``_reward_*``), on flat ground."""
         cfg = self.config
-        cmd = info["command"]
-        v, w = self.base_lin_vel(data), self.base_ang_vel(data)
-        g = self.projected_gravity(data)
-        q, qd = self.joint_pos(data), self.joint_vel(data)
-        tau = self.pd_torque(data, self.joint_targets(action)) - self._kd * qd
+        cmd, v, w, g, q, qd, tau, foot_pos, foot_vel, _ = self._reward_inputs(data, action, info)
         contact = features["contact"].astype(jnp.float32)
-        foot_pos = data.site_xpos[self._foot_sites]
-        valid_history = info["step"] > 1  # finite differences need one step of this episode
-        foot_vel = jnp.where(valid_history, (foot_pos - info["last_foot_pos"]) / cfg.ctrl_dt, 0.0)
         foot_height = jnp.clip(foot_pos[:, 2], 0.0, 1.0)  # the sites are at the soles
 
         phase = self.phase(info)
