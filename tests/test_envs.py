@@ -489,6 +489,16 @@ class TestPointFootRewards:
         assert t["tracking_contacts_shaped_force"] == pytest.approx(0.5, rel=1e-5)  # the right is down
         assert t["tracking_contacts_shaped_vel"] == pytest.approx(0.5 * (1 - np.exp(-(0.26) / 0.25)), rel=1e-4)
 
+    def test_a_stepped_env_logs_every_term_finite(self, case):
+        env, _, _ = case
+        s = jax.jit(env.reset)(jax.random.PRNGKey(1))
+        step = jax.jit(env.step)
+        for _ in range(3):
+            s = step(s, jnp.full(env.action_size, 0.1))
+        assert sorted(k for k in s.metrics if k.startswith("reward/")) == sorted(f"reward/{k}" for k in env.reward_names)
+        assert all(np.isfinite(float(v)) for v in s.metrics.values()) and np.isfinite(float(s.reward))
+        assert float(s.metrics["reward/keep_balance"]) == pytest.approx(env.config.ctrl_dt)
+
     def test_the_smoothed_schedule(self):
         from envs.biped import smoothed_stance
 
