@@ -7,7 +7,7 @@ import envs
 from envs.biped import BipedEnv
 
 from ptrl_jax import run as run_cli
-from ptrl_jax.io.overrides import ConfigError, load_experiment
+from ptrl_jax.io.overrides import EXPERIMENTS_DIR, ConfigError, load_experiment
 
 
 class TestOverrides:
@@ -95,6 +95,24 @@ class TestPresets:
         # go2_to_xbot's smoke sweep (the CI sweep) adds semantic transfers; the paper's presets stay
         assert all(p.endswith("@semantic") for p in cfg.freeze_presets[5:])
         assert cfg.transfer.mode == "paper"
+
+    @pytest.mark.parametrize("exp", sorted(p.stem for p in EXPERIMENTS_DIR.glob("*.yaml")
+                                           if not p.stem.startswith("_")))
+    @pytest.mark.parametrize("scale", ["smoke", "cpu", "paper"])
+    def test_every_experiment_file_resolves_at_every_scale(self, exp, scale):
+        """Every preset a user can name (`exp=<file>`) loads, with registered robots and known
+        freeze presets, so a broken preset fails here rather than after a source stage."""
+        from ptrl_jax.batch import batch_configs, is_batch
+
+        if is_batch(exp):  # a batch resolves through each of its experiments
+            configs, settings = batch_configs(exp, {"scale": scale})
+            assert configs and settings["scale"] == scale
+        else:
+            configs = {exp: load_experiment(exp, [f"scale={scale}"])}
+        for name, cfg in configs.items():
+            assert cfg.name == name and cfg.scale == scale
+            assert set(cfg.targets) <= set(envs.robot_names())
+            assert cfg.freeze_presets and len(set(cfg.freeze_presets)) == len(cfg.freeze_presets)
 
     def test_xbot_to_all_fine_tunes_the_seven_other_robots(self):
         import envs
