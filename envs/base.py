@@ -247,6 +247,23 @@ class StepOutcome(NamedTuple):
     """Randomness for the auto-reset that follows a done step."""
 
 
+def load_system(mj_model: mujoco.MjModel):
+    """Brax's MJX ``System`` for ``mj_model``, its arrays on this process's first device.
+
+    Brax's ``mjcf.load_model`` calls ``mjx.put_model(mj)``, which places the model on
+    ``jax.devices()[0]``. In one process that is the first local device; under
+    ``jax.distributed`` it is process 0's, which the other processes cannot address, and their
+    compile then fails ("Closing over jax.Array that spans non-addressable devices"). The call is
+    made with ``put_model`` bound to ``jax.local_devices()[0]``, which is the same device in a
+    single process."""
+    put_model = mjx.put_model
+    mjx.put_model = functools.partial(put_model, device=jax.local_devices()[0])
+    try:
+        return mjcf.load_model(mj_model)
+    finally:
+        mjx.put_model = put_model
+
+
 class LeggedEnv(PipelineEnv):
     """Base class: PD control, commands, termination, auto-reset and reward bookkeeping."""
 
@@ -254,8 +271,12 @@ class LeggedEnv(PipelineEnv):
         self.config = config
         mj_model = load_mj_model(config)
         self.mj_model = mj_model
-        sys = mjcf.load_model(mj_model)
+        sys = load_system(mj_model)
         super().__init__(sys, backend="mjx", n_frames=config.decimation, **kwargs)
+        # MJX's initial data as host constants: mjx.make_data places its arrays on
+        # jax.devices()[0], which under jax.distributed is process 0's device (issue 22), so the
+        # reset builds its data from these arrays, placed nowhere, instead of calling it.
+        self._data0 = jax.tree.map(np.asarray, mjx.make_data(sys, device=jax.local_devices()[0]))
 
         self.num_joints = mj_model.nu
         key = mj_model.key("home")
@@ -437,7 +458,7 @@ class LeggedEnv(PipelineEnv):
         # Kinematics only (body and site poses for the first observation): a full mjx.forward
         # here would compile the collision and constraint pipeline a second time, and the
         # first mjx.step recomputes all of it anyway.
-        data = mjx.make_data(self.sys).replace(qpos=qpos, qvel=qvel)
+        data = jax.tree.map(jnp.asarray, self._data0).replace(qpos=qpos, qvel=qvel)
         data = mjx.kinematics(self.sys, data)
         info = self._fresh_info(data, rng)
         obs, info = self._observe(data, info)

@@ -48,6 +48,13 @@ def main(argv: list[str] | None = None) -> int:
         from ptrl_jax.io.xla_flags import configure_from_argv
 
         configure_from_argv(rest)
+        from ptrl_jax.io.hosts import HostsError, start_from_argv  # jax.distributed, as ptrl_jax.run does
+
+        try:
+            rest = start_from_argv(rest)
+        except HostsError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
     module = importlib.import_module(COMMANDS[name][0])
     return module.main(rest)
 

@@ -17,9 +17,16 @@ if __name__ == "__main__":
     # Before jax's backend exists (the imports below create it): compile-bound smoke runs
     # compile about 2.5x faster with the fast-compile XLA settings, and a resumed run compiles
     # with the flags it was saved with (ptrl_jax/io/xla_flags.py).
+    # Several hosts join through jax.distributed, also before the backend exists (ptrl_jax/io/hosts.py).
+    from ptrl_jax.io.hosts import HostsError, start_from_argv
     from ptrl_jax.io.xla_flags import configure_from_argv
 
     configure_from_argv(sys.argv[1:])
+    try:
+        sys.argv[1:] = start_from_argv(sys.argv[1:])
+    except HostsError as e:
+        print(f"error: {e}", file=sys.stderr)
+        raise SystemExit(2)
 
 import time
 from pathlib import Path
@@ -31,7 +38,7 @@ import yaml
 from ptrl_jax.config import ConfigError, ExperimentConfig
 from ptrl_jax.core import sharding
 from ptrl_jax.core.program import make_program
-from ptrl_jax.io import artifacts
+from ptrl_jax.io import artifacts, hosts
 from ptrl_jax.io.artifacts import CheckpointError
 from ptrl_jax.io.checkpoints import load_init_target, load_source_params
 from ptrl_jax.io.outputs import save_outputs
@@ -46,6 +53,8 @@ USAGE = """usage: python -m ptrl_jax.run exp=NAME [scale=smoke|cpu|paper] [key=v
   scale      smoke (tests, < 2 min), cpu (default, <= 30 min on 2 cores), paper (GPU)
   key=value  any config key, dotted: seeds=3 target.ppo.learning_rate=3e-4
              source.env.commands.lin_vel_x=[0,1] freeze_presets=[L2,scratch]
+  several hosts (docs/scaling.md): coordinator=HOST:PORT num_processes=N process_id=K
+             [host_timeout=300] devices=all engine=mjx, or distributed=auto under a cluster scheduler
 """
 
 
@@ -115,6 +124,16 @@ def _compiled_program(cfg: ExperimentConfig, progress: Progress, key: jax.Array,
     return program, init, advance, shardings
 
 
+def check_engine_for_hosts(cfg: ExperimentConfig) -> None:
+    """Refuse MuJoCo C's engine over several processes: its host callback steps the whole env
+    batch in this process's thread pool, which cannot reach another host's envs."""
+    from envs.mujoco_engine import resolve_engine
+
+    if hosts.process_count() > 1 and resolve_engine(cfg.engine) != "mjx":
+        raise ConfigError(f"engine={cfg.engine} runs the physics in one process's MuJoCo C thread pool; over "
+                          f"{hosts.process_count()} processes use engine=mjx")
+
+
 def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool | None = None,
         resume_from: Path | None = None) -> dict:
     """Compile and run the PTRL program for ``cfg``; write the run folder. Returns paths and
@@ -123,7 +142,7 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
 
     The one compiled program is called in slices of ``cfg.checkpoint_every`` iterations (one
     call when it is 0), and the whole state is saved between slices."""
-    show = cfg.progress if show_progress is None else show_progress
+    show = (cfg.progress if show_progress is None else show_progress) and hosts.is_main()
     progress = Progress(cfg, show)
     key = jax.random.PRNGKey(cfg.seed)
     total = cfg.source_iterations + cfg.target.ppo.num_iterations
@@ -133,13 +152,16 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
         robot: tuple(f.name for f in dataclasses.fields(stage.env.rewards)) for robot, stage in cfg.targets.items()})
     devices = sharding.resolve_devices(cfg.devices)
     sharding.check_divisible(env_counts(cfg), devices)
+    check_engine_for_hosts(cfg)
     t = time.monotonic()
     program, init, advance, shardings = _compiled_program(cfg, progress, key, budget, devices)
     # Everything the report needs is imported now, not after training: a source file edited while
     # the run trains cannot then break its report (it did once, 40 minutes in; the state was
     # saved, and `resume=` wrote the report).
     checker = walking_checker(cfg)
-    run_dir = resume_from or run_dir or new_run_dir(cfg)  # after compiling: a refused run writes nothing
+    main = hosts.is_main()  # with several processes only process 0 writes the run folder
+    # after compiling: a refused run writes nothing
+    run_dir = resume_from or run_dir or (new_run_dir(cfg) if main else None)
     inputs = load_source_params(cfg, program), load_init_target(cfg, program)
     if resume_from is not None:
         state, meta = artifacts.load_state(run_dir / RESUME_STATE, jax.eval_shape(init, key, *inputs))
@@ -149,8 +171,9 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     else:
         state = init(key, *inputs)
     compile_s = time.monotonic() - t
-    if resume_from is None:
+    if resume_from is None and main:
         artifacts.write_config(run_dir / "config.yaml", to_dict(cfg))
+    hosts.barrier("compiled")  # a process's compile can lag another's longer than a collective waits
     interrupted = False
     with StopRequest() as stop:
         progress.start()
@@ -158,9 +181,13 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
             before, t_start = program.iterations(state), time.monotonic() - progress.t0
             state = jax.block_until_ready(advance(state, budget))
             progress.record_slice(before, program.iterations(state), t_start)
-            if cfg.checkpoint_every or stop.requested:
-                save_resume_state(cfg, run_dir, state, progress)
-            if stop.requested and not program.finished(state, cfg):
+            stop_now = hosts.any_process(stop.requested)  # a signal on any host stops all at this slice
+            if cfg.checkpoint_every or stop_now:
+                saved = hosts.fetch(state)
+                if main:
+                    save_resume_state(cfg, run_dir, saved, progress)
+                hosts.barrier("saved")
+            if stop_now and not program.finished(state, cfg):
                 interrupted = True
                 break
     run_s = time.monotonic() - progress.t0
@@ -168,17 +195,23 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     if interrupted:
         return {"run_dir": run_dir, "interrupted": True, "compile_s": compile_s, "run_s": run_s,
                 "state": state}
+    state = hosts.fetch(state)
     out = program.output(state)
     notes = [f"Compile {compile_s:.1f} s, run {run_s:.1f} s on {jax.devices()[0].platform.upper()} "
              f"({devices} of {jax.device_count()} device(s))" + (" (resumed)" if resume_from else "")]
     if progress.spread_over > 1:
         notes.append(interpolated_times_note(progress.spread_over))
+    if hosts.process_count() > 1:
+        notes[0] += f" over {hosts.process_count()} processes"
     initial = None
-    if cfg.report.zero_shot_check and (cfg.trains_source or cfg.source_checkpoint or cfg.init_checkpoint):
-        initial = jax.device_get(program.initial_weights(state))
-    result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start, initial,
-                          checker=checker)
-    (run_dir / RESUME_STATE).unlink(missing_ok=True)  # finished: the final checkpoints replace it
+    result: dict = {}
+    if main:
+        if cfg.report.zero_shot_check and (cfg.trains_source or cfg.source_checkpoint or cfg.init_checkpoint):
+            initial = jax.device_get(program.initial_weights(state))
+        result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start, initial,
+                              checker=checker)
+        (run_dir / RESUME_STATE).unlink(missing_ok=True)  # finished: the final checkpoints replace it
+    hosts.barrier("written", timeout_s=3600.0)  # the others wait for process 0's report and checks
     result.update({"run_dir": run_dir, "compile_s": compile_s, "run_s": run_s, "output": out,
                    "interrupted": False, "state": state})
     return result
@@ -202,6 +235,10 @@ def resume(run_dir: Path, show_progress: bool | None = None) -> dict:
 
 def _report_result(result: dict) -> int:
     run_dir = result["run_dir"]
+    if run_dir is None:  # a process other than 0 of several: process 0 writes and reports
+        print(f"process {jax.process_index()} of {jax.process_count()}: "
+              + ("stopped with the others" if result["interrupted"] else "done") + "; process 0 writes the run folder")
+        return 130 if result["interrupted"] else 0
     if result["interrupted"]:
         print(f"stopped; state saved in {run_dir / RESUME_STATE}\n"
               f"resume with: python -m ptrl_jax.run resume={run_dir}", file=sys.stderr)
@@ -220,6 +257,9 @@ def main(argv: list[str] | None = None) -> int:
               f"robot's env config keys, envs/quadruped.py and envs/biped.py):\n{format_keys()}")
         return 0
     try:
+        # Host keys (ptrl_jax/io/hosts.py) when main() is called without `python -m`: they work
+        # only if nothing has run jax yet, and the error says so otherwise.
+        argv = hosts.start_from_argv(argv)
         args = parse_cli(argv)
         if "resume" in args:
             if len(args) > 1:

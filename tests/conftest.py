@@ -27,7 +27,8 @@ jax.config.update("jax_include_full_tracebacks_in_locations", False)
 # rest is seconds-long tests that fill the gaps. pyproject's `--no-loadscope-reorder` makes xdist
 # hand out the groups in this order (by default it sorts them by their number of tests, which put
 # the 3-minute mit_to_xbot group near the end and left one worker idle for minutes).
-_FIRST = ("xbot_to_all", "smoke_go2_to_xbot", "mit_to_xbot", "engine_mujoco_resume", "two_devices")
+_FIRST = ("xbot_to_all", "smoke_go2_to_xbot", "mit_to_xbot", "engine_mujoco_resume", "two_devices",
+          "two_processes")
 _COMPILE_GROUPS = ("walk_", "engine_", "closing_noise", "go2_step", "sim_to_sim", "brax_contract", "toy_robot")
 
 

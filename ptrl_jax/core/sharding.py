@@ -33,10 +33,18 @@ class DevicesError(ConfigError):
     """A ``devices=`` value or env count the program cannot be laid out with."""
 
 
-def resolve_devices(devices: str, available: int | None = None) -> int:
-    """``devices`` (``all`` or a positive count) as a number of local devices."""
-    available = jax.local_device_count() if available is None else available
+def resolve_devices(devices: str, available: int | None = None, processes: int | None = None) -> int:
+    """``devices`` (``all`` or a positive count) as a number of local devices; with several
+    processes (``jax.distributed``, ``ptrl_jax/io/hosts.py``), all devices of all processes."""
+    processes = jax.process_count() if processes is None else processes
     text = str(devices).strip().lower()
+    if processes > 1:
+        total = jax.device_count() if available is None else available
+        if text not in ("all", str(total)):
+            raise DevicesError(f"devices={devices}: over {processes} processes the program runs on all "
+                               f"{total} devices of all of them; give devices=all")
+        return total
+    available = jax.local_device_count() if available is None else available
     if text == "all":
         return available
     try:
@@ -59,8 +67,10 @@ def check_divisible(env_counts: dict[str, int], n: int) -> None:
 
 
 def make_mesh(n: int) -> Mesh:
-    """A one-axis mesh over the first ``n`` local devices."""
-    return Mesh(np.asarray(jax.local_devices()[:n]), (AXIS,))
+    """A one-axis mesh over the first ``n`` local devices, or over every process's devices
+    when several processes take part."""
+    devices = jax.devices() if jax.process_count() > 1 else jax.local_devices()[:n]
+    return Mesh(np.asarray(devices), (AXIS,))
 
 
 def _env_sharded(mesh: Mesh, tree: Any, axis: int, num_envs: int) -> Any:

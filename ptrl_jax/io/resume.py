@@ -61,7 +61,8 @@ def runtime_fingerprint(cfg: ExperimentConfig) -> dict[str, str]:
 
     return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "mujoco": mujoco.__version__,
             "xla_flags": os.environ.get("XLA_FLAGS", ""), "device": jax.devices()[0].device_kind,
-            "engine": resolve_engine(cfg.engine), "devices": str(sharding.resolve_devices(cfg.devices))}
+            "engine": resolve_engine(cfg.engine), "devices": str(sharding.resolve_devices(cfg.devices)),
+            "processes": str(jax.process_count())}
 
 
 def check_runtime(saved: dict[str, str], cfg: ExperimentConfig, run_dir: Path) -> None:
