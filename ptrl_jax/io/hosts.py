@@ -31,6 +31,7 @@ This module imports jax lazily: it runs before the backend exists.
 from __future__ import annotations
 
 import socket
+import sys
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -129,6 +130,12 @@ def start(spec: HostSpec) -> None:
 
     if spec.process_id not in (None, 0):
         wait_for_coordinator(spec.coordinator, spec.timeout_s)
+    # If a process never joins, jax ends every waiting process from C++ after the timeout
+    # ("DEADLINE_EXCEEDED ... RegisterTask", exit 1) with no Python error; this line says what
+    # it was waiting for.
+    who = "this process" if spec.process_id is None else f"process {spec.process_id} of {spec.num_processes}"
+    print(f"{who}: joining the others at coordinator={spec.coordinator or '(from the cluster environment)'}, "
+          f"waiting up to {spec.timeout_s:g} s (host_timeout)", file=sys.stderr, flush=True)
     try:
         jax.distributed.initialize(spec.coordinator, spec.num_processes, spec.process_id,
                                    initialization_timeout=max(1, int(spec.timeout_s)))
