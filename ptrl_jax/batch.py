@@ -22,7 +22,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from ptrl_jax.io import artifacts, transfer_table, walking_table
+from ptrl_jax.io import artifacts, hosts, transfer_table, walking_table
 from ptrl_jax.config import SCALES, ExperimentConfig
 from ptrl_jax.io.overrides import ConfigError, flatten, load_experiment, read_preset
 
@@ -94,7 +94,9 @@ def run_batch(exp: str, cli: Mapping[str, Any], run: Callable[..., dict[str, Any
     in so that this module does not import the CLI that imports it). ``checker`` and
     ``grid_checker`` replace the MJX walking check and the MuJoCo C grid (tests)."""
     configs, settings = batch_configs(exp, cli)
-    batch_dir = artifacts.new_run_dir(settings["runs_dir"], settings["name"])
+    main = hosts.is_main()  # over several processes (ptrl_jax/io/hosts.py) only process 0 writes
+    batch_dir = (artifacts.new_run_dir(settings["runs_dir"], settings["name"]) if main
+                 else Path(settings["runs_dir"]) / settings["name"] / f"process{hosts.process_index()}-writes-nothing")
     table_rows: list[dict[str, Any]] = []
     grid_table: list[dict[str, Any]] = []
     results = {}
@@ -103,6 +105,8 @@ def run_batch(exp: str, cli: Mapping[str, Any], run: Callable[..., dict[str, Any
         results[child] = result
         if result["interrupted"]:
             break
+        if not main:
+            continue
         if settings["table"] == "walking_checks":
             table_rows += walking_table.experiment_rows(
                 child, result["rows"], result["run_dir"], checker or mjx_walking_check, cfg.report.final_window,

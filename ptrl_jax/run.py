@@ -273,6 +273,11 @@ def main(argv: list[str] | None = None) -> int:
 
         if batch.is_batch(exp):  # several experiments and one table (exp=table4)
             result = batch.run_batch(exp, args, run)
+            if not hosts.is_main():
+                print(f"process {jax.process_index()} of {jax.process_count()}: "
+                      + ("stopped with the others" if result["interrupted"] else "done")
+                      + "; process 0 writes the batch folder")
+                return 130 if result["interrupted"] else 0
             print(f"batch folder: {result['run_dir']}")
             table = result["table_path"]
             if table.is_file():

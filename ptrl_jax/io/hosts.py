@@ -165,6 +165,12 @@ def process_count() -> int:
     return jax.process_count()
 
 
+def process_index() -> int:
+    import jax
+
+    return jax.process_index()
+
+
 def is_main() -> bool:
     """Whether this process writes the run folder (process 0, or the only process)."""
     import jax
