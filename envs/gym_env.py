@@ -94,6 +94,7 @@ class LocomotionGymEnv(gymnasium.Env):
         self._fixed_command: np.ndarray | None = None
         self._ended = (False, False)  # (terminated, truncated) of the last step
         self._next_level = jax.jit(env.next_command_level)
+        self._tracked = env.tracked
         self._steps = env.curriculum_steps
 
     def _first_observation(self, view: DataView, key: jax.Array, command, use_command, level):
@@ -147,7 +148,7 @@ class LocomotionGymEnv(gymnasium.Env):
         fell, timed_out = self._ended
         if not (fell or timed_out):
             return jnp.asarray(info["command_level"], jnp.float32)
-        return self._next_level(info["command_level"], info["tracking_sum"], self._steps(info["step"]),
+        return self._next_level(info["command_level"], self._tracked(info, self._steps(info["step"])),
                                 jnp.asarray(fell), jnp.asarray(timed_out))
 
     def step(self, action):

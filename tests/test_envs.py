@@ -301,10 +301,30 @@ class TestCommandCurriculum:
         steps = jnp.array([1000, 1000, 1000, 200, 1000, 40])
         fell = jnp.array([False, False, False, True, False, True])
         timed_out = jnp.array([True, True, False, False, True, False])
-        got = np.asarray(env.next_command_level(level, tracking_sum, steps, fell, timed_out))
+        tracked = env.tracked({"tracking_sum": tracking_sum}, steps)
+        np.testing.assert_array_equal(np.asarray(tracked), [True, False, True, False, True, False])
+        got = np.asarray(env.next_command_level(level, tracked, fell, timed_out))
         # 0.85 on a time-out: up; 0.79: stays; 0.85 but neither fell nor timed out: stays;
         # a fall: down; up past 1 and down past the start are clipped.
         np.testing.assert_allclose(got, [0.6, 0.5, 0.5, 0.4, 1.0, 0.3], atol=1e-6)
+
+    def test_the_gain_judge_on_hand_made_sums(self):
+        """``curriculum_judge=gain``: 1 - sum |c - v|^2 / sum |c|^2 against the threshold; a robot
+        that stands (error = command) never passes, where the kernel judge passes it under a
+        small command, and a period of zero commands raises nothing."""
+        gain = self.env(curriculum_threshold=0.8, curriculum_judge="gain")
+        kernel = self.env(curriculum_threshold=0.8)
+        steps = jnp.array([500, 500, 500, 500])
+        # 0.85 tracked; 0.75 tracked; stood under 0.2 m/s (sum 500 * 0.04 = 20; the Go2 kernel
+        # exp(-0.04 / 0.25) = 0.852 per step); zero commands throughout, standing still.
+        sums = {"command_sq_sum": jnp.array([100.0, 100.0, 20.0, 0.0]),
+                "error_sq_sum": jnp.array([15.0, 25.0, 20.0, 0.0]),
+                "tracking_sum": jnp.array([0.0, 0.0, 500 * np.exp(-0.04 / 0.25), 500.0])}
+        np.testing.assert_array_equal(np.asarray(gain.tracked(sums, steps)), [True, False, False, False])
+        np.testing.assert_array_equal(np.asarray(kernel.tracked(sums, steps))[2:], [True, True])
+        level = jnp.full(4, 0.5)
+        got = gain.next_command_level(level, gain.tracked(sums, steps), jnp.zeros(4, bool), jnp.ones(4, bool))
+        np.testing.assert_allclose(np.asarray(got), [0.6, 0.5, 0.5, 0.5], atol=1e-6)
 
     def test_the_level_scales_every_range(self):
         env = self.env(zero_below=0.0)
@@ -337,6 +357,10 @@ class TestCommandCurriculum:
         mid = step(s, zero)  # mid-episode: the level holds, the kernel accumulates
         assert float(mid.done) == 0.0 and float(mid.info["command_level"]) == pytest.approx(0.3)
         assert 0.0 < float(mid.info["tracking_sum"]) <= 1.0
+        planar = np.asarray(s.info["command"])[:2]  # the command the step was rewarded against
+        v = np.asarray(env.base_lin_vel(mid.pipeline_state))[:2]
+        assert float(mid.info["command_sq_sum"]) == pytest.approx(float(np.sum(planar**2)), rel=1e-5)
+        assert float(mid.info["error_sq_sum"]) == pytest.approx(float(np.sum((planar - v) ** 2)), rel=1e-4, abs=1e-7)
         assert float(mid.metrics["command_level"]) == pytest.approx(0.3)
 
         n = env.config.episode_steps
@@ -346,6 +370,7 @@ class TestCommandCurriculum:
         assert float(out.info["truncation"]) == 1.0
         assert float(out.info["command_level"]) == pytest.approx(0.4)
         assert float(out.info["tracking_sum"]) == 0.0 and int(out.info["step"]) == 0
+        assert float(out.info["command_sq_sum"]) == 0.0 and float(out.info["error_sq_sum"]) == 0.0
 
         poor = s.replace(info={**s.info, "step": jnp.asarray(n - 1, jnp.int32),
                                "command_level": jnp.asarray(0.6, jnp.float32),
@@ -396,11 +421,35 @@ class TestCommandCurriculum:
         assert float(out.info["truncation"]) == 1.0 and float(out.info["command_level"]) == pytest.approx(0.6)
         assert float(jax.jit(episode_env.step)(at(n - 1, 0.9 * r, 0.5), zero).info["command_level"]) == pytest.approx(0.5)
 
+    def test_with_the_gain_judge_a_period_spent_standing_moves_nothing(self):
+        """A stepped Go2 under ``curriculum_update=resample``: a command period whose sums say the
+        robot stood (error = command) under a small command, with a mean kernel of 0.9, raises the
+        level under the kernel judge and not under the gain judge; one that tracked 90 % of the
+        command raises it under both."""
+        kw = dict(engine="mujoco", curriculum_start=0.3, curriculum_step=0.1, curriculum_update="resample")
+        gain, kernel = self.env(curriculum_judge="gain", **kw), self.env(**kw)
+        r = int(round(gain.config.commands.resample_time_s / gain.config.ctrl_dt))
+        zero = jnp.zeros(gain.action_size)
+        s = jax.jit(gain.reset)(jax.random.PRNGKey(0))
+
+        def at(error_share):
+            return s.replace(info={**s.info, "step": jnp.asarray(r - 1, jnp.int32),
+                                   "tracking_sum": jnp.asarray(0.9 * r, jnp.float32),
+                                   "command_sq_sum": jnp.asarray(0.04 * r, jnp.float32),
+                                   "error_sq_sum": jnp.asarray(error_share * 0.04 * r, jnp.float32)})
+
+        level = lambda env, state: float(jax.jit(env.step)(state, zero).info["command_level"])  # noqa: E731
+        assert level(kernel, at(1.0)) == pytest.approx(0.4)
+        assert level(gain, at(1.0)) == pytest.approx(0.3)
+        assert level(gain, at(0.1)) == pytest.approx(0.4) and level(kernel, at(0.1)) == pytest.approx(0.4)
+
     def test_an_unknown_update_rule_is_refused(self):
         import envs
 
         with pytest.raises(ValueError, match="curriculum_update must be 'episode' or 'resample', got 'weekly'"):
             dataclasses.replace(envs.default_config("go2").commands, curriculum_update="weekly")
+        with pytest.raises(ValueError, match="curriculum_judge must be 'kernel' or 'gain', got 'speed'"):
+            dataclasses.replace(envs.default_config("go2").commands, curriculum_judge="speed")
 
     def test_a_family_without_the_tracking_term_is_refused(self):
         import envs
