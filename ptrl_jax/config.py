@@ -79,6 +79,11 @@ class PPOHparams(NamedTuple):
     min_learning_rate: Any
     max_learning_rate: Any
     final_noise_std: Any
+    critic_warmup: Any = 0.0
+    """Iterations at the stage's start in which only the critic learns: the actor and its log-std
+    are left out of the update (masked like a frozen layer) and the adaptive learning rate is held.
+    Not a ``PPOConfig`` field: the program sets it per target variant from
+    ``transfer.critic_warmup`` (transferring variants only; 0 elsewhere)."""
 
 
 @dataclass(frozen=True)
@@ -174,8 +179,11 @@ class PPOConfig:
         return self.batch_size
 
     def hparams(self) -> PPOHparams:
+        """This stage's dynamic hyperparameters; fields that are not PPO settings
+        (``critic_warmup``) take their defaults."""
+        defaults = PPOHparams._field_defaults
         return PPOHparams(
-            *(jnp.asarray(getattr(self, f), jnp.float32) for f in PPOHparams._fields)
+            *(jnp.asarray(getattr(self, f, defaults.get(f)), jnp.float32) for f in PPOHparams._fields)
         )
 
 
@@ -256,6 +264,13 @@ class TransferConfig:
     like its action); a positive value starts every joint's std there instead. A source trained
     with a closing phase ends at its ``final_noise_std`` (0.2), which may leave the target too
     little exploration (docs/table4.md)."""
+    critic_warmup: int = 0
+    """Target iterations at the start of every transferring variant in which only the critic
+    learns: the transferred actor and its log-std act unchanged (the adaptive learning rate is held
+    too) while the critic fits the target's returns. A fresh critic's values are far from them at
+    first, and PPO's first actor updates then follow noisy advantages; 0 (the default, the paper's
+    schedule) updates the actor from the first iteration. Scratch variants never warm up. The
+    warm-up's env steps count against the variant like any others (docs/transfer.md)."""
 
     def __post_init__(self):
         if self.mode not in TRANSFER_MODES:
@@ -264,6 +279,8 @@ class TransferConfig:
             raise ValueError(f"transfer.knee must be one of {list(KNEE_CONVENTIONS)}, got {self.knee!r}")
         if self.noise_std < 0:
             raise ValueError(f"transfer.noise_std must be >= 0 (0 carries the source's std), got {self.noise_std}")
+        if int(self.critic_warmup) != self.critic_warmup or self.critic_warmup < 0:
+            raise ValueError(f"transfer.critic_warmup must be a whole number of iterations >= 0, got {self.critic_warmup}")
 
 
 @dataclass(frozen=True)
@@ -373,6 +390,10 @@ class ExperimentConfig:
         robots = (self.target.robot, *self.extra_targets)
         if len(set(robots)) != len(robots):
             raise ValueError(f"target.robot and extra_targets repeat a robot: {list(robots)}")
+        if self.transfer.critic_warmup >= self.target.ppo.num_iterations:
+            raise ValueError(f"transfer.critic_warmup={self.transfer.critic_warmup} must be below "
+                             f"target.ppo.num_iterations={self.target.ppo.num_iterations}: the transferred "
+                             f"actor would never be fine-tuned")
 
     @property
     def variants(self) -> tuple[str, ...]:

@@ -48,6 +48,8 @@ class TestOverrides:
         ("freeze_ratio=[0.5,1.5]", "freeze_ratio: \\[1.5\\] outside \\[0, 1\\]"),
         ("freeze_ratio=[0.5,0.5]", "repeat a variant"),
         ("scale=huge", "scale must be one of"),
+        ("transfer.critic_warmup=-1", "transfer.critic_warmup must be a whole number of iterations >= 0"),
+        ("scale=smoke transfer.critic_warmup=2", "transfer.critic_warmup=2 must be below target.ppo.num_iterations=2"),
         ("target.robot=xbot", "did you mean 'xbot_l'"),
         ("source.env.kp=[1,2,3]", None),  # caught when the env is built (3 values for 12 joints)
     ])
@@ -153,3 +155,20 @@ class TestBipedFromScratch:
         assert (ppo.entropy_coef, ppo.num_epochs, ppo.desired_kl) == (0.001, 2, 0.02)
         assert (ppo.num_envs, ppo.num_iterations) == (512, 700)
         assert (ppo.gamma, ppo.gae_lambda, ppo.clip_epsilon) == (0.998, 0.95, 0.2)  # the paper's
+
+
+class TestCriticWarmupPerVariant:
+    def test_transferring_variants_warm_up_and_scratch_does_not(self):
+        import numpy as np
+
+        from ptrl_jax.core.program import target_hparams
+
+        cfg = load_experiment("go2_to_a1", ["transfer.critic_warmup=10",
+                                            "freeze_presets=[L2,L2@semantic_actor,scratch]", "freeze_ratio=[0.5]"])
+        hp = target_hparams(cfg)
+        assert cfg.variants == ("L2", "L2@semantic_actor", "scratch", "rho0.5")
+        np.testing.assert_array_equal(np.asarray(hp.critic_warmup), [10.0, 10.0, 0.0, 10.0])
+        np.testing.assert_array_equal(np.asarray(hp.learning_rate), np.float32(cfg.target.ppo.learning_rate))
+        assert float(cfg.source.ppo.hparams().critic_warmup) == 0.0  # the source stage never warms up
+        default = target_hparams(load_experiment("go2_to_a1", []))
+        assert not np.any(np.asarray(default.critic_warmup))

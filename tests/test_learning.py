@@ -224,3 +224,101 @@ class TestEngineInsideTheTrainer:
             assert np.array_equal(np.asarray(ma[k]), np.asarray(mb[k])), k
         same = jax.tree.map(lambda x, y: np.array_equal(np.asarray(x), np.asarray(y)), a, b)
         assert all(jax.tree.leaves(same))
+
+
+class TestExplainedVariance:
+    def test_hand_computed_values(self):
+        from ptrl_jax.core.train import explained_variance
+
+        returns = jnp.array([1.0, 2.0, 3.0, 4.0])  # variance 1.25
+        assert float(explained_variance(returns, returns)) == 1.0
+        assert float(explained_variance(jnp.full(4, 2.5), returns)) == 0.0  # the mean: no better
+        # residuals [0.5, -0.5, 0.5, -0.5]: variance 0.25, so 1 - 0.25 / 1.25 = 0.8
+        np.testing.assert_allclose(float(explained_variance(returns - jnp.array([0.5, -0.5, 0.5, -0.5]), returns)), 0.8)
+        assert float(explained_variance(-returns, returns)) < 0.0  # worse than the mean
+        assert float(explained_variance(jnp.arange(4.0), jnp.ones(4))) == 0.0  # returns that do not vary
+
+
+@pytest.mark.xdist_group("critic_warmup")  # one worker, so the class fixture compiles once
+class TestCriticWarmup:
+    """``hparams.critic_warmup``: the first iterations update the critic alone; the actor, its
+    log-std and their Adam moments stay bitwise as they were, the adaptive learning rate is held,
+    and afterwards the whole network learns. Five iterations, two of them warming up."""
+
+    PPO = dataclasses.replace(PPO, num_iterations=5, entropy_coef=0.01)
+
+    @pytest.fixture(scope="class")
+    def history(self):
+        ppo = self.PPO
+        trainer = make_train(PointMass(), ppo, NET)
+        params = trainer.init_params(jax.random.PRNGKey(0))
+        hparams = ppo.hparams()._replace(critic_warmup=jnp.float32(2))
+        state = trainer.init(jax.random.PRNGKey(1), hparams, empty_mask(params), params)
+        iteration = jax.jit(trainer.iteration)
+        states, metrics = [state], []
+        for _ in range(ppo.num_iterations):
+            state, m = iteration(state)
+            states.append(state)
+            metrics.append(jax.device_get(m))
+        return states, metrics
+
+    @staticmethod
+    def _policy_of(tree):
+        return {"actor": tree["actor"], "log_std": tree["log_std"]}
+
+    @classmethod
+    def _policy(cls, state):
+        return cls._policy_of(state.params)
+
+    def test_the_actor_is_bitwise_unchanged_while_warming_up(self, history):
+        states, metrics = history
+        for s in states[1:3]:
+            same = jax.tree.map(np.array_equal, self._policy(s), self._policy(states[0]))
+            assert all(jax.tree.leaves(same))
+        assert [m["critic_warmup"] for m in metrics] == [1.0, 1.0, 0.0, 0.0, 0.0]
+
+    def test_the_critic_learns_while_warming_up(self, history):
+        states, _ = history
+        w = lambda s: np.asarray(s.params["critic"]["layer_0"]["w"])  # noqa: E731
+        assert not np.array_equal(w(states[1]), w(states[0]))
+        assert not np.array_equal(w(states[2]), w(states[1]))
+
+    def test_the_actor_keeps_no_moving_state_and_the_rate_is_held(self, history):
+        states, metrics = history
+        params_def = jax.tree.structure(states[0].params)
+        is_moment = lambda x: isinstance(x, dict) and jax.tree.structure(x) == params_def  # noqa: E731
+        moments = [m for m in jax.tree.leaves(states[2].opt_state, is_leaf=is_moment) if is_moment(m)]
+        assert len(moments) == 2  # Adam's mu and nu
+        for m in moments:  # the actor's are still zero, the critic's are not
+            assert not any(np.any(np.asarray(x)) for x in jax.tree.leaves(self._policy_of(m)))
+            assert any(np.any(np.asarray(x)) for x in jax.tree.leaves(m["critic"]))
+        assert float(states[2].learning_rate) == np.float32(self.PPO.learning_rate)
+        assert [m["kl"] for m in metrics[:2]] == [0.0, 0.0]
+
+    def test_the_critic_fits_unclipped_while_warming_up(self):
+        """The clipped value loss keeps each value within clip_epsilon of its last one per
+        iteration (up to the network's generalisation); the warm-up fits the returns unclipped,
+        so a fresh critic moves far further in its first iteration."""
+        from ptrl_jax.core.networks import value_apply
+        from ptrl_jax.core.train import normalize_obs
+
+        ppo = dataclasses.replace(self.PPO, num_iterations=1, clip_epsilon=0.01, learning_rate=3e-3, adaptive_lr=False)
+        trainer = make_train(PointMass(), ppo, NET)
+        params = trainer.init_params(jax.random.PRNGKey(0))
+        iteration = jax.jit(trainer.iteration)
+        moved = []
+        for warmup in (0.0, 1.0):
+            hparams = ppo.hparams()._replace(critic_warmup=jnp.float32(warmup))
+            state = trainer.init(jax.random.PRNGKey(1), hparams, empty_mask(params), params)
+            after, _ = iteration(state)
+            obs = normalize_obs(after.normalizer, after.env_state.obs, True)
+            moved.append(float(jnp.mean(jnp.abs(value_apply(after.params, obs, NET) - value_apply(params, obs, NET)))))
+        assert moved[0] < 0.1, moved  # clipped: a few clip_epsilon (measured 0.07)
+        assert moved[1] > 5 * moved[0], moved
+
+    def test_the_whole_network_learns_afterwards(self, history):
+        states, _ = history
+        for name in ("actor", "log_std"):
+            a, b = self._policy(states[2])[name], self._policy(states[5])[name]
+            assert not all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b))), name
+        assert not all(jax.tree.leaves(jax.tree.map(lambda m: bool(np.any(m)), states[5].frozen)))  # run mask untouched

@@ -40,6 +40,15 @@ class TestPPOLoss:
         terms = ppo_loss(jnp.zeros((1, 1)), jnp.ones((1, 1)), jnp.array([2.0]), batch, 0.2, 1.0, 0.0, clip_value=False)
         np.testing.assert_allclose(terms.value, 4.0)
 
+    def test_a_traced_switch_picks_the_clipped_or_the_plain_value_loss(self):
+        # old value 0, target 1, value 0.5: plain (0.5-1)^2 = 0.25; clipped (0.2-1)^2 = 0.64.
+        batch = LossInputs(jnp.zeros((1, 1)), jnp.zeros(1), jnp.array([0.0]), jnp.zeros(1), jnp.array([1.0]))
+        loss = lambda clip: ppo_loss(jnp.zeros((1, 1)), jnp.ones((1, 1)), jnp.array([0.5]), batch, 0.2, 1.0, 0.0,  # noqa: E731
+                                     clip_value=clip).value
+        np.testing.assert_allclose(loss(jnp.array(True)), 0.64, rtol=1e-6)
+        np.testing.assert_allclose(loss(jnp.array(False)), 0.25, rtol=1e-6)
+        np.testing.assert_allclose(loss(True), 0.64, rtol=1e-6)
+
 
 class TestDistributions:
     def test_log_prob_matches_closed_form(self):

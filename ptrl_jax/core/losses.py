@@ -74,7 +74,7 @@ def ppo_loss(
     clip_epsilon: float | jax.Array,
     value_coef: float | jax.Array,
     entropy_coef: float | jax.Array,
-    clip_value: bool = True,
+    clip_value: bool | jax.Array = True,
 ) -> LossTerms:
     """rsl_rl's PPO objective (to be minimised):
 
@@ -82,6 +82,9 @@ def ppo_loss(
         L_pi    = mean( max(-A ratio, -A clip(ratio, 1-eps, 1+eps)) )
         L_V     = mean( max((V - R)^2, (V_old + clip(V - V_old, -eps, eps) - R)^2) )
         L       = L_pi + c_V L_V - c_H mean(H)
+
+    ``clip_value`` False drops L_V's clipped term; a traced bool picks per call (the critic
+    warm-up fits the value unclipped).
     """
     log_prob = distributions.log_prob(batch.action, mean, std)
     ratio = jnp.exp(log_prob - batch.old_log_prob)
@@ -90,9 +93,10 @@ def ppo_loss(
     policy_loss = jnp.mean(jnp.maximum(surrogate, surrogate_clipped))
 
     value_error = (value - batch.target_return) ** 2
-    if clip_value:
+    if clip_value is not False:
         clipped = batch.old_value + jnp.clip(value - batch.old_value, -clip_epsilon, clip_epsilon)
-        value_error = jnp.maximum(value_error, (clipped - batch.target_return) ** 2)
+        clipped_error = jnp.maximum(value_error, (clipped - batch.target_return) ** 2)
+        value_error = clipped_error if clip_value is True else jnp.where(clip_value, clipped_error, value_error)
     value_loss = jnp.mean(value_error)
 
     entropy = jnp.mean(distributions.entropy(std))

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import envs
 from envs.mujoco_engine import resolve_engine
 from ptrl_jax.core import normalization, semantic
-from ptrl_jax.config import ExperimentConfig
+from ptrl_jax.config import ExperimentConfig, PPOHparams
 from ptrl_jax.core.freeze import empty_mask, preset_mask, transfer, variant
 from ptrl_jax.core.train import ProgressFn, Trainer, TrainState, make_train
 
@@ -123,6 +123,16 @@ def target_run_id(cfg: ExperimentConfig, robot_index, preset_index, seed):
     return (robot_index * len(cfg.variants) + preset_index) * cfg.seeds + seed
 
 
+def target_hparams(cfg: ExperimentConfig) -> PPOHparams:
+    """The target stage's hyperparameters per variant (leaves shaped [variants]): ``target.ppo``'s
+    for all, and ``transfer.critic_warmup`` for the variants that transfer (0 for scratch)."""
+    base = cfg.target.ppo.hparams()
+    transfers = jnp.array([variant(v).transfer for v in cfg.variants])
+    stacked = jax.tree.map(lambda x: jnp.broadcast_to(x, transfers.shape), base)
+    warmup = jnp.where(transfers, jnp.float32(cfg.transfer.critic_warmup), jnp.float32(0.0))
+    return stacked._replace(critic_warmup=warmup)
+
+
 def make_program(
     cfg: ExperimentConfig,
     progress: Callable[[str], ProgressFn | None] | None = None,
@@ -153,14 +163,14 @@ def make_program(
         mode_ids = jnp.array(modes, jnp.int32)
         run_ids = target_run_id(cfg, robot_index, jnp.arange(len(presets))[:, None], jnp.arange(n_seeds)[None, :])
         seed_keys = jax.random.split(target_key, n_seeds)
-        hparams = cfg.target.ppo.hparams()
+        hparams = target_hparams(cfg)
 
-        def one_target(seed_key, mode, mask, run_id):
+        def one_target(seed_key, mode, mask, run_id, hp):
             train_k, params, norm = target_weights(target, robot, source, seed_key, mode, init_target)
-            return target.init(train_k, hparams, mask, params, run_id, norm)
+            return target.init(train_k, hp, mask, params, run_id, norm)
 
-        over_seeds = jax.vmap(one_target, in_axes=(0, None, None, 0))
-        return jax.vmap(over_seeds, in_axes=(None, 0, 0, 0))(seed_keys, mode_ids, masks, run_ids)
+        over_seeds = jax.vmap(one_target, in_axes=(0, None, None, 0, None))
+        return jax.vmap(over_seeds, in_axes=(None, 0, 0, 0, 0))(seed_keys, mode_ids, masks, run_ids, hparams)
 
     def target_weights(target: Trainer, robot: str, source, seed_key, mode, init_target=None):
         """One run's start: (its training key, params, normaliser) for variant ``mode``."""

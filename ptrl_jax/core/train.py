@@ -182,28 +182,36 @@ def make_train(
         return env_state, episodes, new_stats, key, transitions, extras
 
     # ----- update ------------------------------------------------------------------------------------
-    def loss_fn(params, batch: Transition, inputs: LossInputs, hparams: PPOHparams):
+    def loss_fn(params, batch: Transition, inputs: LossInputs, hparams: PPOHparams, clip_value):
         out = policy_apply(params, batch.observation, network)
         value = value_apply(params, batch.observation, network)
         terms = ppo_loss(
             out.mean, out.std, value, inputs,
-            hparams.clip_epsilon, hparams.value_coef, hparams.entropy_coef, ppo.clip_value_loss,
+            hparams.clip_epsilon, hparams.value_coef, hparams.entropy_coef, clip_value,
         )
         kl = jnp.mean(distributions.kl_divergence(batch.action_mean, batch.action_std, out.mean, out.std))
         return terms.total, (terms, kl)
 
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
-    def make_sgd_step(hp: PPOHparams, frozen: Mask):
+    def make_sgd_step(hp: PPOHparams, frozen: Mask, warming: jax.Array | bool = False):
+        """One minibatch's Adam step. ``warming`` (the critic warm-up): the adaptive learning rate
+        is held, and the value loss is not clipped (the clip keeps the critic within
+        ``clip_epsilon`` of its last values per iteration, which a fresh critic far from the
+        returns would take tens of iterations to cross)."""
         optimizer = make_optimizer(frozen, hp.max_grad_norm)
+        clip_value = (~jnp.asarray(warming)) if ppo.clip_value_loss else False
 
         def sgd_step(carry, minibatch):
             params, opt_state, lr = carry
             batch, inputs = minibatch
-            (_, (terms, kl)), grads = grad_fn(params, batch, inputs, hp)
+            (_, (terms, kl)), grads = grad_fn(params, batch, inputs, hp, clip_value)
             if ppo.adaptive_lr:
                 # rsl_rl adapts the rate from this minibatch's KL before taking the step.
-                lr = adaptive_kl_learning_rate(lr, kl, hp.desired_kl, hp.min_learning_rate, hp.max_learning_rate)
+                # Held while the actor is out of the update (critic warm-up): its KL is then 0, which
+                # would otherwise raise the rate step after step to its maximum.
+                adapted = adaptive_kl_learning_rate(lr, kl, hp.desired_kl, hp.min_learning_rate, hp.max_learning_rate)
+                lr = jnp.where(warming, lr, adapted)
             direction, new_opt_state = optimizer.update(grads, opt_state, params)
             new_params = apply_updates(params, direction, lr)
             # A non-finite gradient skips the update (and is counted) instead of poisoning params.
@@ -233,12 +241,13 @@ def make_train(
         return state._replace(params={**state.params, "log_std": log_std}), frozen
 
     def update(params: Params, opt_state: Any, learning_rate: jax.Array, hp: PPOHparams, frozen: Mask,
-               batch: Transition, inputs: LossInputs, key: PRNGKey):
+               batch: Transition, inputs: LossInputs, key: PRNGKey, warming: jax.Array | bool = False):
         """The SGD of one iteration: ``ppo.num_epochs`` passes over ``batch`` (flattened to
         ``[batch_size, ...]``), each shuffled into ``ppo.num_minibatches`` minibatches, one Adam
-        step per minibatch (frozen leaves masked). Returns ``((params, opt_state, lr), metrics)``
-        with metrics per epoch and minibatch."""
-        sgd_step = make_sgd_step(hp, frozen)
+        step per minibatch (frozen leaves masked). ``warming``: a critic warm-up iteration
+        (``make_sgd_step``). Returns ``((params, opt_state, lr), metrics)`` with metrics per epoch
+        and minibatch."""
+        sgd_step = make_sgd_step(hp, frozen, warming)
 
         def epoch(carry, epoch_key):
             perm = jax.random.permutation(epoch_key, ppo.batch_size)
@@ -248,9 +257,19 @@ def make_train(
 
         return jax.lax.scan(epoch, (params, opt_state, learning_rate), jax.random.split(key, ppo.num_epochs))
 
+    def hold_actor_for_critic_warmup(state: TrainState, frozen: Mask) -> tuple[Mask, jax.Array]:
+        """In the stage's first ``hparams.critic_warmup`` iterations, leave the actor and its
+        log-std out of the update (``frozen`` is the update's mask; the run's own is not changed).
+        Returns the mask and whether this iteration warms up (``make_sgd_step`` then holds the
+        learning rate and fits the value unclipped)."""
+        warming = state.iteration < state.hparams.critic_warmup
+        policy = lambda tree: jax.tree.map(lambda m: m | warming, tree)  # noqa: E731
+        return {**frozen, "actor": policy(frozen["actor"]), "log_std": policy(frozen["log_std"])}, warming
+
     def iteration(state: TrainState) -> tuple[TrainState, dict]:
         hp = state.hparams
         state, update_frozen = hold_closing_noise(state)
+        update_frozen, warming = hold_actor_for_critic_warmup(state, update_frozen)
         env_state, episodes, new_stats, key, tr, extras = rollout(state)
 
         values = value_apply(state.params, tr.observation, network)
@@ -269,7 +288,7 @@ def make_train(
         )
         key, sgd_key = jax.random.split(key)
         (params, opt_state, lr), sgd_metrics = update(
-            state.params, state.opt_state, state.learning_rate, hp, update_frozen, batch, inputs, sgd_key
+            state.params, state.opt_state, state.learning_rate, hp, update_frozen, batch, inputs, sgd_key, warming
         )
 
         env_steps = state.env_steps + ppo.batch_size
@@ -285,6 +304,9 @@ def make_train(
             "step_reward": jnp.mean(tr.reward),
             "learning_rate": lr,
             "noise_std": jnp.mean(jnp.exp(state.params["log_std"])),  # the std this iteration acted with
+            # How well the critic (before this update) predicted the rollout's GAE returns.
+            "value_explained_variance": explained_variance(values, returns),
+            "critic_warmup": warming.astype(jnp.float32),
             "nonfinite_states": jnp.sum(extras["nonfinite"]),
             **{f"episode_{k}": ep_mean(v) for k, v in episodes.last_terms.items()},
             # Each term per env step over this rollout: unlike the episode terms, which change only
@@ -311,6 +333,14 @@ def make_train(
         return jax.lax.scan(lambda s, _: iteration(s), state, None, length=ppo.num_iterations)
 
     return Trainer(init_params, init, iteration, train, update, obs_sizes)
+
+
+def explained_variance(values: jax.Array, returns: jax.Array) -> jax.Array:
+    """1 - Var[returns - values] / Var[returns] over every entry: 1 for a critic that predicts
+    the returns exactly, 0 for one no better than their mean, negative for worse; 0 when the
+    returns do not vary."""
+    var = jnp.var(returns)
+    return jnp.where(var > 0, 1.0 - jnp.var(returns - values) / jnp.where(var > 0, var, 1.0), 0.0)
 
 
 def _track_episodes(ep: EpisodeStats, state) -> EpisodeStats:
