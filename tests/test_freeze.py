@@ -84,7 +84,8 @@ class TestMaskedAdam:
         opt = masked(chain(clip_by_global_norm(1.0), scale_by_adam()), frozen)
         # Moments restored from "pretraining": non-zero everywhere, frozen leaves included.
         clip_state, adam = opt.init(params)
-        adam = AdamState(count=jnp.array(100, jnp.int32), mu=random_like(params, 1), nu=jax.tree.map(jnp.abs, random_like(params, 2)))
+        adam = AdamState(count=jax.tree.map(lambda p: jnp.full(p.shape, 100, jnp.int32), params),
+                         mu=random_like(params, 1), nu=jax.tree.map(jnp.abs, random_like(params, 2)))
         state = (clip_state, adam)
         start = params
 

@@ -26,9 +26,27 @@ class TestAdam:
         v = 0.999 * 0.001 * np.array([0.25, 1.0]) + 0.001 * np.array([0.25, 4.0])
         expected = (m / (1 - 0.9**2)) / (np.sqrt(v / (1 - 0.999**2)) + 1e-8)
         np.testing.assert_allclose(d2["w"], expected, rtol=1e-5)
-        assert int(state.count) == 2
+        assert np.all(np.asarray(state.count["w"]) == 2)
         new = apply_updates(params, d2, 0.1)
         np.testing.assert_allclose(new["w"], params["w"] - 0.1 * expected, rtol=1e-6)
+
+
+    def test_an_entry_held_out_starts_its_bias_correction_when_it_starts(self):
+        """Under ``freeze.masked``, an entry frozen for 100 steps and then released takes the
+        first step of a fresh Adam (sign of g), not one corrected for 100 steps of zero moments."""
+        from ptrl_jax.core.freeze import masked
+
+        params = {"w": jnp.array([1.0, -2.0])}
+        g = {"w": jnp.array([0.5, -1.0])}
+        held = masked(scale_by_adam(), {"w": jnp.array([False, True])})
+        state = held.init(params)
+        for _ in range(100):
+            _, state = held.update(g, state, params)
+        np.testing.assert_array_equal(np.asarray(state.count["w"]), [100, 0])
+        released = masked(scale_by_adam(), {"w": jnp.array([False, False])})
+        d, state = released.update(g, state, params)
+        np.testing.assert_allclose(d["w"][1], -1.0, rtol=1e-5)  # a first step: the sign of g
+        np.testing.assert_array_equal(np.asarray(state.count["w"]), [101, 1])
 
 
 class TestClipByGlobalNorm:

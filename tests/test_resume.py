@@ -222,6 +222,18 @@ class TestBadResumeState:
         with pytest.raises(CheckpointError, match=r"missing \[\"\['params'\]\['w'\]\"\]|missing \['\[.params.\]\[.w.\]'\]"):
             artifacts.load_state(tmp_path / "s.npz", self.TEMPLATE)
 
+    def test_a_state_of_an_older_layout_is_refused_by_name(self, tmp_path):
+        import json
+
+        self.save(tmp_path / "s.npz")
+        arrays = dict(np.load(tmp_path / "s.npz"))
+        meta = json.loads(bytes(arrays["__meta__"]).decode())
+        del meta["state_format"]  # as written before the layout was numbered
+        arrays["__meta__"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+        np.savez(tmp_path / "old.npz", **arrays)
+        with pytest.raises(CheckpointError, match=r"old.npz has state layout 1, this ptrl_jax writes and reads 2"):
+            artifacts.load_state(tmp_path / "old.npz", self.TEMPLATE)
+
     def test_truncated_file(self, tmp_path):
         self.save(tmp_path / "s.npz")
         data = (tmp_path / "s.npz").read_bytes()

@@ -5,7 +5,8 @@ An ``Optimizer`` is an ``(init, update)`` pair. ``update(grads, state, params)``
 (``apply_updates``), because PPO's adaptive-KL rule changes it every minibatch and it lives in
 the train state, not in the optimizer.
 
-Adam (Kingma & Ba, 2015), with bias correction and eps outside the square root like optax:
+Adam (Kingma & Ba, 2015), with bias correction and eps outside the square root like optax, and
+t counted per parameter entry (``AdamState.count``):
 
     m_t = b1 m_{t-1} + (1 - b1) g          v_t = b2 v_{t-1} + (1 - b2) g^2
     m^  = m_t / (1 - b1^t)                 v^  = v_t / (1 - b2^t)
@@ -31,7 +32,12 @@ class Optimizer(NamedTuple):
 
 
 class AdamState(NamedTuple):
-    count: jax.Array
+    count: Params
+    """Steps taken, per parameter entry (shaped like the params, int32). One count per entry
+    rather than one for the whole tree: ``freeze.masked`` keeps a frozen entry's state, count
+    included, so an entry that starts learning late (after a critic warm-up, say) starts its bias
+    correction at step 1. With a shared count its first steps would be corrected as if its zero
+    moments had been averaged for the whole wait: 2 to 6 times too large."""
     mu: Params
     nu: Params
 
@@ -43,20 +49,20 @@ class EmptyState(NamedTuple):
 def scale_by_adam(b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8) -> Optimizer:
     def init(params: Params) -> AdamState:
         zeros = jax.tree.map(jnp.zeros_like, params)
-        return AdamState(count=jnp.zeros((), jnp.int32), mu=zeros, nu=jax.tree.map(jnp.zeros_like, params))
+        return AdamState(count=jax.tree.map(lambda p: jnp.zeros(jnp.shape(p), jnp.int32), params),
+                         mu=zeros, nu=jax.tree.map(jnp.zeros_like, params))
 
     def update(grads: Updates, state: AdamState, params: Params | None = None):
         del params
-        count = state.count + 1
+        count = jax.tree.map(lambda c: c + 1, state.count)
         mu = jax.tree.map(lambda m, g: b1 * m + (1.0 - b1) * g, state.mu, grads)
         nu = jax.tree.map(lambda v, g: b2 * v + (1.0 - b2) * g * g, state.nu, grads)
-        t = count.astype(jnp.float32)
-        mu_correction = 1.0 - b1**t
-        nu_correction = 1.0 - b2**t
-        direction = jax.tree.map(
-            lambda m, v: (m / mu_correction) / (jnp.sqrt(v / nu_correction) + eps), mu, nu
-        )
-        return direction, AdamState(count=count, mu=mu, nu=nu)
+
+        def direction(m, v, c):
+            t = c.astype(jnp.float32)
+            return (m / (1.0 - b1**t)) / (jnp.sqrt(v / (1.0 - b2**t)) + eps)
+
+        return jax.tree.map(direction, mu, nu, count), AdamState(count=count, mu=mu, nu=nu)
 
     return Optimizer(init, update)
 

@@ -20,6 +20,9 @@ import numpy as np
 import yaml
 
 CHECKPOINT_FORMAT = 1
+STATE_FORMAT = 2
+"""Layout of the resumable program state (``save_state``). 2 (2026-12-05): Adam's step count per
+parameter entry, and ``PPOHparams.critic_warmup``. A state of another layout is refused by name."""
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -147,7 +150,8 @@ def save_state(path: Path, state: Any, meta: Mapping[str, Any]) -> None:
     """Every leaf of a pytree (the whole program state), keyed by its path, plus JSON ``meta``.
     Atomic: a kill at any moment leaves the previous file or the new one, never half of one."""
     arrays = {_state_key(p): np.asarray(leaf) for p, leaf in jax.tree_util.tree_leaves_with_path(state)}
-    arrays["__meta__"] = np.frombuffer(json.dumps({"format": CHECKPOINT_FORMAT, **meta}).encode(), np.uint8)
+    arrays["__meta__"] = np.frombuffer(
+        json.dumps({"format": CHECKPOINT_FORMAT, "state_format": STATE_FORMAT, **meta}).encode(), np.uint8)
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     atomic_write_bytes(path, buf.getvalue())
@@ -162,6 +166,12 @@ def load_state(path: Path, template: Any) -> tuple[Any, dict[str, Any]]:
     if "__meta__" not in flat:
         raise CheckpointError(f"{path} has no '__meta__' entry: not a ptrl_jax resume state")
     meta = json.loads(bytes(flat.pop("__meta__")).decode())
+    layout = meta.get("state_format", 1)  # states written before the layout was numbered are 1
+    if layout != STATE_FORMAT:
+        raise CheckpointError(
+            f"resume state {path} has state layout {layout}, this ptrl_jax writes and reads "
+            f"{STATE_FORMAT} (ptrl_jax/io/artifacts.py, STATE_FORMAT): resume it with the ptrl_jax "
+            f"that wrote it; its checkpoints (source.npz, target_*.npz) load in any version")
     leaves_with_path, treedef = jax.tree_util.tree_flatten_with_path(template)
     expected = [_state_key(p) for p, _ in leaves_with_path]
     missing = [k for k in expected if k not in flat]
