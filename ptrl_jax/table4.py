@@ -31,12 +31,14 @@ writes table4.md, table4.csv and variants.csv there (a folder that holds them is
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import yaml
 
+from ptrl_jax.config import TransferConfig
 from ptrl_jax.core.freeze import MODE_SEPARATOR
 from ptrl_jax.io import artifacts, transfer_table
 from ptrl_jax.io.overrides import ConfigError, coerce, parse_known_cli
@@ -57,6 +59,12 @@ def read_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     return cfg, artifacts.read_metrics_csv(run_dir / "metrics.csv")
 
 
+def _transfer_defaults() -> dict[str, Any]:
+    """``transfer.*`` defaults, as a run's config.yaml writes them (sequences as lists)."""
+    flat = _flat(dataclasses.asdict(TransferConfig()), "transfer.")
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in flat.items()}
+
+
 def _flat(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k, v in d.items():
@@ -65,6 +73,9 @@ def _flat(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             out[f"{prefix}{k}"] = v
     return out
+
+
+TRANSFER_DEFAULTS = _transfer_defaults()
 
 
 def _target_settings(cfg: Mapping[str, Any], robot: str) -> dict[str, Any]:
@@ -108,7 +119,8 @@ def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[st
                         f"{settings.get(k)!r} against {g['settings'].get(k)!r}"
                         + (f", and {len(differ) - 1} more key(s)" if len(differ) > 1 else "")
                         + "), so their steps to a threshold are not comparable")
-            g["transfer"].append(_flat(cfg.get("transfer", {}), "transfer."))
+            # A key an older run's config lacks came later, with a default that keeps the old behaviour.
+            g["transfer"].append({**TRANSFER_DEFAULTS, **_flat(cfg.get("transfer", {}), "transfer.")})
             g["rows"].append((run_dir, cfg, [r for r in rows if r["stage"] == "target" and str(r["robot"]) == robot]))
     out = {}
     for key, g in groups.items():

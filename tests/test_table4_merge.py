@@ -56,6 +56,18 @@ class TestMergedRuns:
         assert math.isnan(by["scratch"]["steps_saved_mean"])
         assert "not run (L2)" in result["markdown"] and "-12.5 % ± 12.5 (2/2)" in result["markdown"]
 
+    def test_a_setting_an_older_run_lacks_reads_as_its_default(self, tmp_path):
+        """A run from before ``transfer.critic_warmup`` existed ran without a warm-up: its
+        variant is labelled with the default, 0, beside the run that set it."""
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH, ("L2@semantic_actor", 0): [0, 3, 3, 3, 3]})
+        b = make_run(tmp_path / "b" / "1", {("L2@semantic_actor", 0): [0, 0, 3, 3, 3]})
+        cfg = yaml.safe_load((b / "config.yaml").read_text())
+        cfg["transfer"]["critic_warmup"] = 10
+        (b / "config.yaml").write_text(yaml.safe_dump(cfg))
+        (variants,) = table4.build([a, b])["variants"]
+        assert [v["preset"] for v in variants] == [
+            "scratch", "L2@semantic_actor [critic_warmup=0]", "L2@semantic_actor [critic_warmup=10]"]
+
     def test_seed_roots_are_seeds_of_their_own(self, tmp_path):
         a = make_run(tmp_path / "a" / "1", {**SCRATCH, ("none@semantic", 0): [0, 3, 3, 3, 3],
                                             ("none@semantic", 1): [0, 3, 3, 3, 3]})
