@@ -31,7 +31,6 @@ writes table4.md, table4.csv and variants.csv there (a folder that holds them is
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -41,7 +40,7 @@ import yaml
 from ptrl_jax.config import TransferConfig
 from ptrl_jax.core.freeze import MODE_SEPARATOR
 from ptrl_jax.io import artifacts, transfer_table
-from ptrl_jax.io.overrides import ConfigError, coerce, parse_known_cli
+from ptrl_jax.io.overrides import ConfigError, coerce, flatten, parse_known_cli, to_dict
 
 KEYS = ("runs", "metric", "fraction", "window", "transfer_preset", "out", "overwrite")
 OUTPUTS = ("table4.md", "table4.csv", "variants.csv")
@@ -59,23 +58,8 @@ def read_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     return cfg, artifacts.read_metrics_csv(run_dir / "metrics.csv")
 
 
-def _transfer_defaults() -> dict[str, Any]:
-    """``transfer.*`` defaults, as a run's config.yaml writes them (sequences as lists)."""
-    flat = _flat(dataclasses.asdict(TransferConfig()), "transfer.")
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in flat.items()}
-
-
-def _flat(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, Mapping):
-            out.update(_flat(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
-
-
-TRANSFER_DEFAULTS = _transfer_defaults()
+# ``transfer.*`` defaults as a run's config.yaml writes them.
+TRANSFER_DEFAULTS = flatten(to_dict(TransferConfig()), "transfer.")
 
 
 def _target_settings(cfg: Mapping[str, Any], robot: str) -> dict[str, Any]:
@@ -83,8 +67,8 @@ def _target_settings(cfg: Mapping[str, Any], robot: str) -> dict[str, Any]:
     extra target robot trains with target.ppo and its registry env, named by robot)."""
     target = cfg.get("target", {})
     if target.get("robot") == robot:
-        return _flat({"ppo": target.get("ppo", {}), "env": target.get("env", {})}, "target.")
-    return _flat({"ppo": target.get("ppo", {})}, "target.") | {"target.env": f"registry default of {robot}"}
+        return flatten({"ppo": target.get("ppo", {}), "env": target.get("env", {})}, "target.")
+    return flatten({"ppo": target.get("ppo", {})}, "target.") | {"target.env": f"registry default of {robot}"}
 
 
 def _source_of(run_dir: Path, cfg: Mapping[str, Any]) -> str:
@@ -120,7 +104,7 @@ def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[st
                         + (f", and {len(differ) - 1} more key(s)" if len(differ) > 1 else "")
                         + "), so their steps to a threshold are not comparable")
             # A key an older run's config lacks came later, with a default that keeps the old behaviour.
-            g["transfer"].append({**TRANSFER_DEFAULTS, **_flat(cfg.get("transfer", {}), "transfer.")})
+            g["transfer"].append({**TRANSFER_DEFAULTS, **flatten(cfg.get("transfer", {}), "transfer.")})
             g["rows"].append((run_dir, cfg, [r for r in rows if r["stage"] == "target" and str(r["robot"]) == robot]))
     out = {}
     for key, g in groups.items():

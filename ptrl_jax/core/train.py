@@ -196,9 +196,8 @@ def make_train(
 
     def make_sgd_step(hp: PPOHparams, frozen: Mask, warming: jax.Array | bool = False):
         """One minibatch's Adam step. ``warming`` (the critic warm-up): the adaptive learning rate
-        is held, and the value loss is not clipped (the clip keeps the critic within
-        ``clip_epsilon`` of its last values per iteration, which a fresh critic far from the
-        returns would take tens of iterations to cross)."""
+        is held, and the value loss is not clipped (the clip is a trust region for a critic
+        whose policy moves; here the policy is held, and the clip would only slow the fit)."""
         optimizer = make_optimizer(frozen, hp.max_grad_norm)
         clip_value = (~jnp.asarray(warming)) if ppo.clip_value_loss else False
 
