@@ -245,7 +245,9 @@ class TransferConfig:
     """``paper``: copy the actor's L1 and L2, everything else fresh (the paper's transfer).
     ``semantic``: map the whole agent (input and output layers, log-std, normaliser, critic)
     through the robots' declared observations and joint roles (``ptrl_jax.core.semantic``).
-    ``semantic_actor``: the same, but the critic starts fresh. A variant named
+    ``semantic_actor``: the same, but the critic starts fresh. ``semantic_input``: only the
+    actor's input layer and the normaliser mapped, its hidden layers copied, output layer, log-std
+    and critic fresh (the paper's transfer with a mapped input layer). A variant named
     ``<preset>@<mode>`` picks its own mode."""
     joint_map: tuple[str, ...] = ()
     """Overrides of the role-based joint pairs for semantic transfers, ``"<target joint>:<source

@@ -122,6 +122,26 @@ class TestGo2ToA1IsTheIdentity:
         assert same(actor["actor"], whole["actor"]) and same(actor["log_std"], whole["log_std"])
         assert same(actor_norm, whole_norm)
 
+    def test_semantic_input_maps_only_what_the_actor_reads(self, robots):
+        """``output=False`` (mode semantic_input): the input layer, hidden layers and normaliser
+        are the whole map's; the output layer, log-std and critic are the fresh network's (the
+        output layer at its plain init, not the unmapped columns' small share of it)."""
+        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
+        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
+        m = semantic.build_map(robots["go2"], robots["a1"])
+        whole, whole_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+        inp, inp_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm, critic=False, output=False)
+        same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
+        last = f"layer_{len(fresh['actor']) - 1}"
+        for layer in fresh["actor"]:
+            assert same(inp["actor"][layer], (fresh if layer == last else whole)["actor"][layer]), layer
+        assert not same(whole["actor"][last], fresh["actor"][last])
+        assert same(inp["log_std"], fresh["log_std"]) and not same(whole["log_std"], fresh["log_std"])
+        assert same(inp["critic"], fresh["critic"]) and same(inp_norm, whole_norm)
+        restd, _ = semantic.apply(m, src, src_norm, fresh, fresh_norm, noise_std=0.3, critic=False, output=False)
+        np.testing.assert_allclose(np.exp(np.asarray(restd["log_std"])), 0.3, rtol=1e-6)
+        assert same(restd["actor"], inp["actor"])
+
     def test_a_negative_noise_std_is_refused(self):
         from ptrl_jax.config import TransferConfig
 
@@ -309,6 +329,7 @@ class TestVariantNames:
 
         assert variant("L2@semantic").mode_index == 2 and variant("L2").mode_index == 1
         assert variant("L2@semantic_actor").mode_index == 3 and variant("L2@semantic_actor").frozen == ("L2",)
+        assert variant("L2@semantic_input").mode_index == 4 and variant("L2@semantic_input").frozen == ("L2",)
         assert variant("scratch").mode_index == 0
         assert with_mode("rho0.5", "semantic") == "rho0.5@semantic" and with_mode("scratch", "semantic") == "scratch"
         assert variant("L2@paper").name == "L2"
@@ -368,23 +389,37 @@ class TestTransferTool:
         _, run_dir = smoke_run
         src = run_dir / "source.npz"
         cfg = load_experiment("go2_to_a1", ["scale=smoke", f"source_checkpoint={src}", "engine=mujoco",
-                                            "freeze_presets=[L2@semantic,L2@semantic_actor,L2]"])
+                                            "freeze_presets=[L2@semantic,L2@semantic_actor,L2,L2@semantic_input]"])
         program = make_program(cfg)
         first = program.start_weights(jax.random.PRNGKey(0), load_source_params(cfg, program))
         params, norm = first["a1"].params, first["a1"].normalizer
         pick = lambda tree, p: jax.tree.map(lambda x: np.asarray(x[p]), tree)  # noqa: E731
         same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
-        sem, actor, paper = (pick(params, p) for p in range(3))
+        sem, actor, paper, inp = (pick(params, p) for p in range(4))
         assert same(actor["actor"], sem["actor"]) and same(actor["log_std"], sem["log_std"])
-        assert same(pick(norm, 1), pick(norm, 0))
+        assert same(pick(norm, 1), pick(norm, 0)) and same(pick(norm, 3), pick(norm, 0))
         assert same(actor["critic"], paper["critic"]) and not same(actor["critic"], sem["critic"])
+        # semantic_input: the mapped input layer, the source's hidden layers (as the paper's
+        # transfer copies them), and the paper variant's fresh output layer, log-std and critic.
+        last = f"layer_{len(paper['actor']) - 1}"
+        assert same(inp["actor"]["layer_0"], sem["actor"]["layer_0"])
+        assert not same(inp["actor"]["layer_0"], paper["actor"]["layer_0"])
+        for layer in ("layer_1", "layer_2"):
+            assert same(inp["actor"][layer], paper["actor"][layer]) and same(inp["actor"][layer], sem["actor"][layer])
+        assert same(inp["actor"][last], paper["actor"][last]) and same(inp["critic"], paper["critic"])
+        assert cfg.transfer.noise_std == 0.5  # go2_to_a1 restarts every semantic std at 0.5
+        np.testing.assert_allclose(np.exp(inp["log_std"]), 0.5, rtol=1e-6)
         source_critic = artifacts.load_checkpoint(src)["params"]["critic"]
         assert np.array_equal(sem["critic"]["layer_1"]["w"][0], source_critic["layer_1"]["w"])
 
         out = tmp_path / "a1_actor.npz"
         assert transfer.main([f"source={src}", "target=a1", "mode=semantic_actor", f"out={out}"]) == 0
         meta = artifacts.load_checkpoint(out)["meta"]["transfer"]
-        assert meta["mode"] == "semantic_actor" and meta["critic"] == "fresh"
+        assert meta["mode"] == "semantic_actor" and meta["critic"] == "fresh" and meta["output_layer"] == "mapped"
+        assert transfer.main([f"source={src}", "target=a1", "mode=semantic_input", f"out={out}"]) == 0
+        written = artifacts.load_checkpoint(out)
+        assert written["meta"]["transfer"]["output_layer"] == "fresh"
+        assert np.array_equal(written["params"]["actor"]["layer_0"]["w"], inp["actor"]["layer_0"]["w"][0])  # seed 0
 
     def test_refusals_name_what_is_wrong(self, smoke_run, tmp_path, capsys):
         from ptrl_jax import transfer
@@ -418,7 +453,7 @@ def test_initial_weights_are_bitwise_those_the_target_stage_starts_from(tmp_path
                               {"robot": "go2", "stage": "source"})
     cfg = load_experiment("go2_to_a1", ["scale=smoke", "engine=mujoco", "seeds=2", f"source_checkpoint={src}",
                                         "report.zero_shot_check=false",
-                                        "freeze_presets=[L2,L2@semantic,L2@semantic_actor,scratch]"])
+                                        "freeze_presets=[L2,L2@semantic,L2@semantic_actor,L2@semantic_input,scratch]"])
     program = make_program(cfg)
     source = load_source_params(cfg, program)
     key = jax.random.PRNGKey(7)

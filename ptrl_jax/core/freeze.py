@@ -29,15 +29,19 @@ from ptrl_jax.core.types import Mask, Params
 HIDDEN_LAYERS: dict[str, str] = {"L1": "layer_1", "L2": "layer_2"}
 
 
-TRANSFER_MODES = ("paper", "semantic", "semantic_actor")
+TRANSFER_MODES = ("paper", "semantic", "semantic_actor", "semantic_input")
 """How a transferring variant initialises the target: ``paper`` copies the actor's L1 and L2
 (``transfer`` below); ``semantic`` maps the whole agent through the robots' declarations
 (``ptrl_jax.core.semantic``); ``semantic_actor`` maps the actor, its log-std and the normaliser the
 same way but starts the critic fresh, as the paper does (a critic's values are in the source's
-reward scale and dynamics, which the target may not share; docs/table4.md)."""
+reward scale and dynamics, which the target may not share; docs/table4.md); ``semantic_input``
+maps only what the actor reads (its input layer and the normaliser) and copies its hidden layers,
+and starts its output layer, log-std and critic fresh: the paper's transfer with a mapped input
+layer, which carries the source's features but not its joint commands (docs/transfer.md)."""
 MODE_SEPARATOR = "@"
 """Variant names ``<preset>@semantic`` (``L2@semantic``, ``rho0.5@semantic``) or
-``<preset>@semantic_actor`` transfer semantically; a bare name transfers as the paper does."""
+``<preset>@semantic_actor`` or ``<preset>@semantic_input`` transfer semantically; a bare name
+transfers as the paper does."""
 
 
 class FreezePreset:
@@ -51,8 +55,8 @@ class FreezePreset:
 
     @property
     def mode_index(self) -> int:
-        """0: no transfer (scratch), 1: paper, 2: semantic, 3: semantic_actor (the program's
-        per-variant switch)."""
+        """0: no transfer (scratch), 1: paper, 2: semantic, 3: semantic_actor, 4: semantic_input
+        (the program's per-variant switch)."""
         return 0 if not self.transfer else 1 + TRANSFER_MODES.index(self.mode)
 
     def __repr__(self) -> str:

@@ -153,7 +153,7 @@ def make_program(
     transfer_maps = ({r: semantic.build_map(source_env, e, cfg.transfer.joint_map, cfg.transfer.unmapped_blocks,
                                             cfg.transfer.knee)
                       for r, e in target_envs.items()} if cfg.semantic else {})
-    modes = [variant(p).mode_index for p in presets]  # 0 scratch, 1 paper, 2 semantic, 3 semantic_actor
+    modes = [variant(p).mode_index for p in presets]  # 0 scratch, 1 paper, 2 semantic, 3 _actor, 4 _input
 
     def init_robot_targets(target: Trainer, robot: str, robot_index: int, source, target_key,
                            init_target=None) -> TrainState:
@@ -185,9 +185,9 @@ def make_program(
             return train_k, params, fresh_norm
         sem_params, sem_norm = semantic.apply(transfer_maps[robot], source["params"], source["normalizer"],
                                               fresh, fresh_norm, cfg.transfer.noise_std)
-        if 3 in modes:  # semantic_actor: the mapped actor with the fresh critic
-            sem_params = {**sem_params, "critic": jax.tree.map(
-                lambda a, b: jnp.where(mode == 3, a, b), fresh["critic"], sem_params["critic"])}
+        if 3 in modes or 4 in modes:  # semantic_actor: fresh critic; semantic_input: fresh output too
+            sem_params = semantic.keep_fresh(sem_params, fresh, fresh_critic=mode >= 3, fresh_output=mode == 4,
+                                             noise_std=cfg.transfer.noise_std)
         is_sem = mode >= 2
         params = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_params, params)
         norm = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_norm, fresh_norm)

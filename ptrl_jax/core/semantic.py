@@ -232,11 +232,13 @@ def _map_mlp(src: Params, fresh: Params, m: EntryMap, output=None) -> Params:
 
 
 def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, target_params: Params,
-          target_normalizer: dict, noise_std: float = 0.0, critic: bool = True) -> tuple[Params, dict]:
+          target_normalizer: dict, noise_std: float = 0.0, critic: bool = True,
+          output: bool = True) -> tuple[Params, dict]:
     """The semantic transfer: the target's initial (params, normaliser) from the source's.
     ``target_params``/``target_normalizer`` are the fresh ones (unmapped output columns start
     from them). ``noise_std`` > 0 starts every joint's policy std there instead of carrying the
-    source's. ``critic=False`` keeps the fresh critic (mode ``semantic_actor``); the
+    source's. ``critic=False`` keeps the fresh critic (mode ``semantic_actor``); ``output=False``
+    also keeps the actor's fresh output layer and log-std (mode ``semantic_input``). The
     normaliser is mapped either way (its statistics describe the target's observations, not a
     learned value). Traceable; the maps are static."""
     has = tmap.joint_source >= 0
@@ -249,8 +251,7 @@ def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, tar
         return {"w": w, "b": b}
 
     actor = _map_mlp(source_params["actor"], target_params["actor"], tmap.obs["state"], actor_output)
-    critic = (_map_mlp(source_params["critic"], target_params["critic"], tmap.obs["privileged_state"])
-              if critic else target_params["critic"])
+    critic_params = _map_mlp(source_params["critic"], target_params["critic"], tmap.obs["privileged_state"])
     if noise_std > 0:
         log_std = jnp.full_like(target_params["log_std"], np.log(noise_std))
     elif has.any():
@@ -259,7 +260,9 @@ def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, tar
         log_std = jnp.where(has, mapped_log_std, fill)
     else:
         log_std = target_params["log_std"]
-    params = {"actor": actor, "log_std": log_std.astype(target_params["log_std"].dtype), "critic": critic}
+    mapped = {"actor": actor, "log_std": log_std.astype(target_params["log_std"].dtype), "critic": critic_params}
+    params = keep_fresh(mapped, target_params, fresh_critic=not critic, fresh_output=not output,
+                        noise_std=noise_std)
 
     normalizer = {}
     for key, m in tmap.obs.items():
@@ -273,3 +276,19 @@ def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, tar
         normalizer[key] = normalization.RunningStats(mean=mean.astype(t.mean.dtype), m2=m2.astype(t.m2.dtype),
                                                      count=jnp.asarray(count, t.count.dtype))
     return params, normalizer
+
+
+def keep_fresh(mapped: Params, fresh: Params, fresh_critic: bool | jax.Array, fresh_output: bool | jax.Array,
+               noise_std: float = 0.0) -> Params:
+    """``mapped`` (``apply``'s params) with parts put back to ``fresh``'s: the critic where
+    ``fresh_critic``; the actor's output layer and log-std where ``fresh_output`` (the log-std
+    at ``noise_std`` when that is > 0). The switches may be traced booleans (the program picks
+    per variant); a fresh output layer takes the plain init, not ``UNMAPPED_OUTPUT_SCALE``'s
+    share of it, as the paper's transfer does."""
+    where = lambda c, a, b: jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)  # noqa: E731
+    last = f"layer_{len(fresh['actor']) - 1}"
+    fresh_log_std = (jnp.full_like(fresh["log_std"], np.log(noise_std)) if noise_std > 0 else fresh["log_std"])
+    actor = {**mapped["actor"], last: where(fresh_output, fresh["actor"][last], mapped["actor"][last])}
+    return {"actor": actor,
+            "log_std": jnp.where(fresh_output, fresh_log_std, mapped["log_std"]).astype(fresh["log_std"].dtype),
+            "critic": where(fresh_critic, fresh["critic"], mapped["critic"])}

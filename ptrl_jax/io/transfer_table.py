@@ -12,7 +12,7 @@ from finished runs. The rule, per target robot of an experiment:
   non-transferred layers and same env stream), then mean and std over the seeds where both
   reached the threshold;
 - the same for the semantic transfer (``ptrl_jax/core/semantic.py``): its best variant among those
-  named ``<preset>@semantic`` or ``<preset>@semantic_actor`` in the run, by mean env steps to
+  named ``<preset>@semantic[_actor|_input]`` in the run, by mean env steps to
   the threshold (the choice is named in the row, and made on the same seeds it is reported on).
 
 In one program every variant runs in lockstep under ``vmap`` and shares one clock, so the wall
@@ -43,8 +43,9 @@ PAPER_HOURS: dict[str, tuple[float, float]] = {
 4090; the paper gives no seeds, thresholds or env steps."""
 
 def is_semantic(name: str) -> bool:
-    """Whether variant ``name`` transfers semantically (``<preset>@semantic`` or
-    ``<preset>@semantic_actor``): the candidates for the semantic column."""
+    """Whether variant ``name`` transfers semantically (``<preset>@semantic``,
+    ``<preset>@semantic_actor`` or ``<preset>@semantic_input``): the candidates for the semantic
+    column."""
     return name.partition(MODE_SEPARATOR)[2].startswith("semantic")
 
 FIELDS = (
