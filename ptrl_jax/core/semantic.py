@@ -251,7 +251,8 @@ def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, tar
         return {"w": w, "b": b}
 
     actor = _map_mlp(source_params["actor"], target_params["actor"], tmap.obs["state"], actor_output)
-    critic_params = _map_mlp(source_params["critic"], target_params["critic"], tmap.obs["privileged_state"])
+    critic_params = (_map_mlp(source_params["critic"], target_params["critic"], tmap.obs["privileged_state"])
+                     if critic else target_params["critic"])
     if noise_std > 0:
         log_std = jnp.full_like(target_params["log_std"], np.log(noise_std))
     elif has.any():
