@@ -142,6 +142,26 @@ class TestGo2ToA1IsTheIdentity:
         np.testing.assert_allclose(np.exp(np.asarray(restd["log_std"])), 0.3, rtol=1e-6)
         assert same(restd["actor"], inp["actor"])
 
+    def test_keep_fresh_under_jit_picks_per_switch_and_keeps_the_fresh_std_at_zero_noise(self, robots):
+        """The program's path: ``keep_fresh`` with traced switches, as ``jnp.where`` picks per
+        variant. With ``noise_std=0`` a fresh output keeps the fresh network's own log-std."""
+        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
+        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
+        fresh = {**fresh, "log_std": fresh["log_std"] + 0.25}  # distinct from the source's
+        m = semantic.build_map(robots["go2"], robots["a1"])
+        whole, _ = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+        pick = jax.jit(lambda c, o: semantic.keep_fresh(whole, fresh, c, o, noise_std=0.0))
+        same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
+        last = f"layer_{len(fresh['actor']) - 1}"
+        for c in (False, True):
+            for o in (False, True):
+                got = pick(jnp.asarray(c), jnp.asarray(o))
+                assert same(got["critic"], (fresh if c else whole)["critic"]), (c, o)
+                assert same(got["actor"][last], (fresh if o else whole)["actor"][last]), (c, o)
+                assert same(got["log_std"], (fresh if o else whole)["log_std"]), (c, o)
+                assert same(got["actor"]["layer_0"], whole["actor"]["layer_0"]), (c, o)
+        assert not same(whole["log_std"], fresh["log_std"])
+
     def test_a_negative_noise_std_is_refused(self):
         from ptrl_jax.config import TransferConfig
 
