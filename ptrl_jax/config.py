@@ -247,7 +247,9 @@ class TransferConfig:
     through the robots' declared observations and joint roles (``ptrl_jax.core.semantic``).
     ``semantic_actor``: the same, but the critic starts fresh. ``semantic_input``: only the
     actor's input layer and the normaliser mapped, its hidden layers copied, output layer, log-std
-    and critic fresh (the paper's transfer with a mapped input layer). A variant named
+    and critic fresh (the paper's transfer with a mapped input layer). ``semantic_output``: its
+    complement, only the output layer and log-std mapped, the input layer, normaliser and critic
+    fresh, the hidden layers copied (the paper's transfer with a mapped output layer). A variant named
     ``<preset>@<mode>`` picks its own mode."""
     joint_map: tuple[str, ...] = ()
     """Overrides of the role-based joint pairs for semantic transfers, ``"<target joint>:<source

@@ -6,6 +6,8 @@
 ``mode=semantic`` maps the whole agent through the robots' declarations (``ptrl_jax.core.semantic``),
 ``mode=semantic_actor`` the same with a fresh critic, ``mode=semantic_input`` maps only the actor's
 input layer and the normaliser (its hidden layers copied, output layer, log-std and critic fresh),
+``mode=semantic_output`` maps only its output layer and log-std (input layer, normaliser and
+critic fresh, hidden layers copied),
 ``mode=paper`` copies the actor's L1 and L2 into a fresh network (``freeze.transfer``). The
 checkpoint holds the parameters, the normaliser statistics, an all-false freeze mask and, in
 its metadata, the map (each target joint's source joint and factor, the matched observation
@@ -69,9 +71,10 @@ def transfer_policy(policy: dict[str, Any], target_robot: str, mode: str = "sema
             raise ConfigError(str(e)) from None
         params, norm = semantic.apply(tmap, policy["params"], policy["normalizer"], fresh, fresh_norm,
                                       transfer_cfg.noise_std, critic=mode == "semantic",
-                                      output=mode != "semantic_input")
+                                      output=mode != "semantic_input", input_layer=mode != "semantic_output")
         meta["transfer"] = {"mode": mode, "noise_std": transfer_cfg.noise_std, "knee": transfer_cfg.knee,
                             "critic": "mapped" if mode == "semantic" else "fresh",
+                            "input_layer": "fresh" if mode == "semantic_output" else "mapped",
                             "output_layer": "fresh" if mode == "semantic_input" else "mapped", **tmap.describe()}
     to_np = lambda t: jax.tree.map(np.asarray, t)  # noqa: E731
     return {"params": to_np(params), "normalizer": to_np(norm), "meta": meta}

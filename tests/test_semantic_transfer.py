@@ -142,6 +142,22 @@ class TestGo2ToA1IsTheIdentity:
         np.testing.assert_allclose(np.exp(np.asarray(restd["log_std"])), 0.3, rtol=1e-6)
         assert same(restd["actor"], inp["actor"])
 
+    def test_semantic_output_maps_only_what_the_actor_writes(self, robots):
+        """``critic=False, input_layer=False`` (mode semantic_output): the output layer, log-std
+        and hidden layers are the whole map's; the input layer, normaliser and critic are the
+        fresh network's."""
+        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
+        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
+        m = semantic.build_map(robots["go2"], robots["a1"])
+        whole, whole_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+        out, out_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm, critic=False, input_layer=False)
+        same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
+        for layer in fresh["actor"]:
+            assert same(out["actor"][layer], (fresh if layer == "layer_0" else whole)["actor"][layer]), layer
+        assert not same(whole["actor"]["layer_0"], fresh["actor"]["layer_0"])
+        assert same(out["log_std"], whole["log_std"]) and same(out["critic"], fresh["critic"])
+        assert same(out_norm, fresh_norm) and not same(whole_norm, fresh_norm)
+
     def test_keep_fresh_under_jit_picks_per_switch_and_keeps_the_fresh_std_at_zero_noise(self, robots):
         """The program's path: ``keep_fresh`` with traced switches, as ``jnp.where`` picks per
         variant. With ``noise_std=0`` a fresh output keeps the fresh network's own log-std."""
@@ -150,16 +166,16 @@ class TestGo2ToA1IsTheIdentity:
         fresh = {**fresh, "log_std": fresh["log_std"] + 0.25}  # distinct from the source's
         m = semantic.build_map(robots["go2"], robots["a1"])
         whole, _ = semantic.apply(m, src, src_norm, fresh, fresh_norm)
-        pick = jax.jit(lambda c, o: semantic.keep_fresh(whole, fresh, c, o, noise_std=0.0))
+        pick = jax.jit(lambda c, o, i: semantic.keep_fresh(whole, fresh, c, o, noise_std=0.0, fresh_input=i))
         same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
         last = f"layer_{len(fresh['actor']) - 1}"
-        for c in (False, True):
-            for o in (False, True):
-                got = pick(jnp.asarray(c), jnp.asarray(o))
-                assert same(got["critic"], (fresh if c else whole)["critic"]), (c, o)
-                assert same(got["actor"][last], (fresh if o else whole)["actor"][last]), (c, o)
-                assert same(got["log_std"], (fresh if o else whole)["log_std"]), (c, o)
-                assert same(got["actor"]["layer_0"], whole["actor"]["layer_0"]), (c, o)
+        for c, o, i in np.ndindex(2, 2, 2):
+            got = pick(jnp.asarray(bool(c)), jnp.asarray(bool(o)), jnp.asarray(bool(i)))
+            assert same(got["critic"], (fresh if c else whole)["critic"]), (c, o, i)
+            assert same(got["actor"][last], (fresh if o else whole)["actor"][last]), (c, o, i)
+            assert same(got["log_std"], (fresh if o else whole)["log_std"]), (c, o, i)
+            assert same(got["actor"]["layer_0"], (fresh if i else whole)["actor"]["layer_0"]), (c, o, i)
+            assert same(got["actor"]["layer_1"], whole["actor"]["layer_1"]), (c, o, i)
         assert not same(whole["log_std"], fresh["log_std"])
 
     def test_a_negative_noise_std_is_refused(self):
@@ -350,6 +366,7 @@ class TestVariantNames:
         assert variant("L2@semantic").mode_index == 2 and variant("L2").mode_index == 1
         assert variant("L2@semantic_actor").mode_index == 3 and variant("L2@semantic_actor").frozen == ("L2",)
         assert variant("L2@semantic_input").mode_index == 4 and variant("L2@semantic_input").frozen == ("L2",)
+        assert variant("L2@semantic_output").mode_index == 5 and variant("L2@semantic_output").frozen == ("L2",)
         assert variant("scratch").mode_index == 0
         assert with_mode("rho0.5", "semantic") == "rho0.5@semantic" and with_mode("scratch", "semantic") == "scratch"
         assert variant("L2@paper").name == "L2"
@@ -409,13 +426,14 @@ class TestTransferTool:
         _, run_dir = smoke_run
         src = run_dir / "source.npz"
         cfg = load_experiment("go2_to_a1", ["scale=smoke", f"source_checkpoint={src}", "engine=mujoco",
-                                            "freeze_presets=[L2@semantic,L2@semantic_actor,L2,L2@semantic_input]"])
+                                            "freeze_presets=[L2@semantic,L2@semantic_actor,L2,L2@semantic_input,"
+                                            "L2@semantic_output]"])
         program = make_program(cfg)
         first = program.start_weights(jax.random.PRNGKey(0), load_source_params(cfg, program))
         params, norm = first["a1"].params, first["a1"].normalizer
         pick = lambda tree, p: jax.tree.map(lambda x: np.asarray(x[p]), tree)  # noqa: E731
         same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
-        sem, actor, paper, inp = (pick(params, p) for p in range(4))
+        sem, actor, paper, inp, outp = (pick(params, p) for p in range(5))
         assert same(actor["actor"], sem["actor"]) and same(actor["log_std"], sem["log_std"])
         assert same(pick(norm, 1), pick(norm, 0)) and same(pick(norm, 3), pick(norm, 0))
         assert same(actor["critic"], paper["critic"]) and not same(actor["critic"], sem["critic"])
@@ -427,6 +445,14 @@ class TestTransferTool:
         for layer in ("layer_1", "layer_2"):
             assert same(inp["actor"][layer], paper["actor"][layer]) and same(inp["actor"][layer], sem["actor"][layer])
         assert same(inp["actor"][last], paper["actor"][last]) and same(inp["critic"], paper["critic"])
+        # semantic_output: the paper variant's fresh input layer, normaliser and critic, the
+        # source's hidden layers, and the mapped output layer and log-std.
+        assert same(outp["actor"]["layer_0"], paper["actor"]["layer_0"]) and same(pick(norm, 4), pick(norm, 2))
+        assert not same(pick(norm, 4), pick(norm, 0))
+        for layer in ("layer_1", "layer_2", last):
+            assert same(outp["actor"][layer], sem["actor"][layer]), layer
+        assert not same(outp["actor"][last], paper["actor"][last])
+        assert same(outp["log_std"], sem["log_std"]) and same(outp["critic"], paper["critic"])
         assert cfg.transfer.noise_std == 0.5  # go2_to_a1 restarts every semantic std at 0.5
         np.testing.assert_allclose(np.exp(inp["log_std"]), 0.5, rtol=1e-6)
         source_critic = artifacts.load_checkpoint(src)["params"]["critic"]
@@ -438,8 +464,12 @@ class TestTransferTool:
         assert meta["mode"] == "semantic_actor" and meta["critic"] == "fresh" and meta["output_layer"] == "mapped"
         assert transfer.main([f"source={src}", "target=a1", "mode=semantic_input", f"out={out}"]) == 0
         written = artifacts.load_checkpoint(out)
-        assert written["meta"]["transfer"]["output_layer"] == "fresh"
+        assert written["meta"]["transfer"]["output_layer"] == "fresh" and written["meta"]["transfer"]["input_layer"] == "mapped"
         assert np.array_equal(written["params"]["actor"]["layer_0"]["w"], inp["actor"]["layer_0"]["w"][0])  # seed 0
+        assert transfer.main([f"source={src}", "target=a1", "mode=semantic_output", f"out={out}"]) == 0
+        written = artifacts.load_checkpoint(out)
+        assert written["meta"]["transfer"]["input_layer"] == "fresh" and written["meta"]["transfer"]["output_layer"] == "mapped"
+        assert np.array_equal(written["params"]["actor"]["layer_3"]["w"], outp["actor"]["layer_3"]["w"][0])  # seed 0
 
     def test_refusals_name_what_is_wrong(self, smoke_run, tmp_path, capsys):
         from ptrl_jax import transfer
@@ -473,7 +503,8 @@ def test_initial_weights_are_bitwise_those_the_target_stage_starts_from(tmp_path
                               {"robot": "go2", "stage": "source"})
     cfg = load_experiment("go2_to_a1", ["scale=smoke", "engine=mujoco", "seeds=2", f"source_checkpoint={src}",
                                         "report.zero_shot_check=false",
-                                        "freeze_presets=[L2,L2@semantic,L2@semantic_actor,L2@semantic_input,scratch]"])
+                                        "freeze_presets=[L2,L2@semantic,L2@semantic_actor,L2@semantic_input,"
+                                        "L2@semantic_output,scratch]"])
     program = make_program(cfg)
     source = load_source_params(cfg, program)
     key = jax.random.PRNGKey(7)

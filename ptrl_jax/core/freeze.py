@@ -29,7 +29,7 @@ from ptrl_jax.core.types import Mask, Params
 HIDDEN_LAYERS: dict[str, str] = {"L1": "layer_1", "L2": "layer_2"}
 
 
-TRANSFER_MODES = ("paper", "semantic", "semantic_actor", "semantic_input")
+TRANSFER_MODES = ("paper", "semantic", "semantic_actor", "semantic_input", "semantic_output")
 """How a transferring variant initialises the target: ``paper`` copies the actor's L1 and L2
 (``transfer`` below); ``semantic`` maps the whole agent through the robots' declarations
 (``ptrl_jax.core.semantic``); ``semantic_actor`` maps the actor, its log-std and the normaliser the
@@ -37,11 +37,14 @@ same way but starts the critic fresh, as the paper does (a critic's values are i
 reward scale and dynamics, which the target may not share; docs/table4.md); ``semantic_input``
 maps only what the actor reads (its input layer and the normaliser) and copies its hidden layers,
 and starts its output layer, log-std and critic fresh: the paper's transfer with a mapped input
-layer, which carries the source's features but not its joint commands (docs/transfer.md)."""
+layer, which carries the source's features but not its joint commands (docs/transfer.md);
+``semantic_output`` is its complement: the actor's input layer and the normaliser start fresh,
+the hidden layers are copied, and the output layer and log-std are mapped (critic fresh): the
+paper's transfer with a mapped output layer."""
 MODE_SEPARATOR = "@"
 """Variant names ``<preset>@semantic`` (``L2@semantic``, ``rho0.5@semantic``) or
-``<preset>@semantic_actor`` or ``<preset>@semantic_input`` transfer semantically; a bare name
-transfers as the paper does."""
+``<preset>@semantic_actor``, ``<preset>@semantic_input`` or ``<preset>@semantic_output`` transfer
+semantically; a bare name transfers as the paper does."""
 
 
 class FreezePreset:
@@ -55,8 +58,8 @@ class FreezePreset:
 
     @property
     def mode_index(self) -> int:
-        """0: no transfer (scratch), 1: paper, 2: semantic, 3: semantic_actor, 4: semantic_input
-        (the program's per-variant switch)."""
+        """0: no transfer (scratch), 1: paper, 2: semantic, 3: semantic_actor, 4: semantic_input,
+        5: semantic_output (the program's per-variant switch)."""
         return 0 if not self.transfer else 1 + TRANSFER_MODES.index(self.mode)
 
     def __repr__(self) -> str:

@@ -153,7 +153,7 @@ def make_program(
     transfer_maps = ({r: semantic.build_map(source_env, e, cfg.transfer.joint_map, cfg.transfer.unmapped_blocks,
                                             cfg.transfer.knee)
                       for r, e in target_envs.items()} if cfg.semantic else {})
-    modes = [variant(p).mode_index for p in presets]  # 0 scratch, 1 paper, 2 semantic, 3 _actor, 4 _input
+    modes = [variant(p).mode_index for p in presets]  # 0 scratch, 1 paper, 2 semantic, 3 _actor, 4 _input, 5 _output
 
     def init_robot_targets(target: Trainer, robot: str, robot_index: int, source, target_key,
                            init_target=None) -> TrainState:
@@ -185,12 +185,13 @@ def make_program(
             return train_k, params, fresh_norm
         sem_params, sem_norm = semantic.apply(transfer_maps[robot], source["params"], source["normalizer"],
                                               fresh, fresh_norm, cfg.transfer.noise_std)
-        if 3 in modes or 4 in modes:  # semantic_actor: fresh critic; semantic_input: fresh output too
+        if any(m >= 3 for m in modes):  # fresh critic; _input: fresh output too; _output: fresh input
             sem_params = semantic.keep_fresh(sem_params, fresh, fresh_critic=mode >= 3, fresh_output=mode == 4,
-                                             noise_std=cfg.transfer.noise_std)
+                                             noise_std=cfg.transfer.noise_std, fresh_input=mode == 5)
         is_sem = mode >= 2
         params = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_params, params)
-        norm = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_norm, fresh_norm)
+        mapped_norm = is_sem & (mode != 5)  # semantic_output reads through a fresh input layer
+        norm = jax.tree.map(lambda a, b: jnp.where(mapped_norm, a, b), sem_norm, fresh_norm)
         return train_k, params, norm
 
     def robot_keys(target_key) -> list:

@@ -233,14 +233,16 @@ def _map_mlp(src: Params, fresh: Params, m: EntryMap, output=None) -> Params:
 
 def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, target_params: Params,
           target_normalizer: dict, noise_std: float = 0.0, critic: bool = True,
-          output: bool = True) -> tuple[Params, dict]:
+          output: bool = True, input_layer: bool = True) -> tuple[Params, dict]:
     """The semantic transfer: the target's initial (params, normaliser) from the source's.
     ``target_params``/``target_normalizer`` are the fresh ones (unmapped output columns start
     from them). ``noise_std`` > 0 starts every joint's policy std there instead of carrying the
     source's. ``critic=False`` keeps the fresh critic (mode ``semantic_actor``); ``output=False``
-    also keeps the actor's fresh output layer and log-std (mode ``semantic_input``). The
-    normaliser is mapped either way (its statistics describe the target's observations, not a
-    learned value). Traceable; the maps are static."""
+    also keeps the actor's fresh output layer and log-std (mode ``semantic_input``);
+    ``input_layer=False`` keeps the actor's fresh input layer and the fresh normaliser (with
+    ``critic=False``: mode ``semantic_output``). Otherwise the normaliser is mapped (its
+    statistics describe the target's observations, not a learned value). Traceable; the maps
+    are static."""
     has = tmap.joint_source >= 0
     idx = np.maximum(tmap.joint_source, 0)
     f = tmap.joint_factor.astype(np.float32)
@@ -263,7 +265,9 @@ def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, tar
         log_std = target_params["log_std"]
     mapped = {"actor": actor, "log_std": log_std.astype(target_params["log_std"].dtype), "critic": critic_params}
     params = keep_fresh(mapped, target_params, fresh_critic=not critic, fresh_output=not output,
-                        noise_std=noise_std)
+                        noise_std=noise_std, fresh_input=not input_layer)
+    if not input_layer:
+        return params, target_normalizer
 
     normalizer = {}
     for key, m in tmap.obs.items():
@@ -280,16 +284,18 @@ def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, tar
 
 
 def keep_fresh(mapped: Params, fresh: Params, fresh_critic: bool | jax.Array, fresh_output: bool | jax.Array,
-               noise_std: float = 0.0) -> Params:
+               noise_std: float = 0.0, fresh_input: bool | jax.Array = False) -> Params:
     """``mapped`` (``apply``'s params) with parts put back to ``fresh``'s: the critic where
     ``fresh_critic``; the actor's output layer and log-std where ``fresh_output`` (the log-std
-    at ``noise_std`` when that is > 0). The switches may be traced booleans (the program picks
+    at ``noise_std`` when that is > 0); the actor's input layer where ``fresh_input`` (the
+    normaliser is the caller's to pick). The switches may be traced booleans (the program picks
     per variant); a fresh output layer takes the plain init, not ``UNMAPPED_OUTPUT_SCALE``'s
     share of it, as the paper's transfer does."""
     where = lambda c, a, b: jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)  # noqa: E731
     last = f"layer_{len(fresh['actor']) - 1}"
     fresh_log_std = (jnp.full_like(fresh["log_std"], np.log(noise_std)) if noise_std > 0 else fresh["log_std"])
-    actor = {**mapped["actor"], last: where(fresh_output, fresh["actor"][last], mapped["actor"][last])}
+    actor = {**mapped["actor"], last: where(fresh_output, fresh["actor"][last], mapped["actor"][last]),
+             "layer_0": where(fresh_input, fresh["actor"]["layer_0"], mapped["actor"]["layer_0"])}
     return {"actor": actor,
             "log_std": jnp.where(fresh_output, fresh_log_std, mapped["log_std"]).astype(fresh["log_std"].dtype),
             "critic": where(fresh_critic, fresh["critic"], mapped["critic"])}

@@ -44,8 +44,8 @@ PAPER_HOURS: dict[str, tuple[float, float]] = {
 
 def is_semantic(name: str) -> bool:
     """Whether variant ``name`` transfers semantically (``<preset>@semantic``,
-    ``<preset>@semantic_actor`` or ``<preset>@semantic_input``): the candidates for the semantic
-    column."""
+    ``<preset>@semantic_actor``, ``<preset>@semantic_input`` or ``<preset>@semantic_output``):
+    the candidates for the semantic column."""
     return name.partition(MODE_SEPARATOR)[2].startswith("semantic")
 
 FIELDS = (
