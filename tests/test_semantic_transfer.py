@@ -10,6 +10,7 @@ joint error 55-66).
 """
 
 import dataclasses
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -78,6 +79,22 @@ class TestDeclarations:
             envs.make("go2", dataclasses.replace(envs.default_config("go2"), joint_roles=tuple(roles)))
 
 
+def same(a, b) -> bool:
+    """Every leaf of two pytrees bitwise equal."""
+    return all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))
+
+
+@pytest.fixture(scope="module")
+def go2_a1(robots):
+    """A random Go2 agent, a fresh A1 one, their map and the whole semantic transfer."""
+    src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
+    fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
+    m = semantic.build_map(robots["go2"], robots["a1"])
+    whole, whole_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+    return SimpleNamespace(src=src, src_norm=src_norm, fresh=fresh, fresh_norm=fresh_norm, map=m,
+                           whole=whole, whole_norm=whole_norm)
+
+
 class TestGo2ToA1IsTheIdentity:
     def test_the_map(self, robots):
         m = semantic.build_map(robots["go2"], robots["a1"])
@@ -111,27 +128,21 @@ class TestGo2ToA1IsTheIdentity:
                             {k: reset[k] for k in ("actor", "critic")})
         assert all(jax.tree.leaves(same))
 
-    def test_semantic_actor_keeps_the_fresh_critic_and_maps_the_rest(self, robots):
-        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
-        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
-        m = semantic.build_map(robots["go2"], robots["a1"])
-        whole, whole_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+    def test_semantic_actor_keeps_the_fresh_critic_and_maps_the_rest(self, go2_a1):
+        src, src_norm, fresh, fresh_norm, m = go2_a1.src, go2_a1.src_norm, go2_a1.fresh, go2_a1.fresh_norm, go2_a1.map
+        whole, whole_norm = go2_a1.whole, go2_a1.whole_norm
         actor, actor_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm, critic=False)
-        same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
         assert same(actor["critic"], fresh["critic"]) and not same(actor["critic"], whole["critic"])
         assert same(actor["actor"], whole["actor"]) and same(actor["log_std"], whole["log_std"])
         assert same(actor_norm, whole_norm)
 
-    def test_semantic_input_maps_only_what_the_actor_reads(self, robots):
+    def test_semantic_input_maps_only_what_the_actor_reads(self, go2_a1):
         """``output=False`` (mode semantic_input): the input layer, hidden layers and normaliser
         are the whole map's; the output layer, log-std and critic are the fresh network's (the
         output layer at its plain init, not the unmapped columns' small share of it)."""
-        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
-        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
-        m = semantic.build_map(robots["go2"], robots["a1"])
-        whole, whole_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+        src, src_norm, fresh, fresh_norm, m = go2_a1.src, go2_a1.src_norm, go2_a1.fresh, go2_a1.fresh_norm, go2_a1.map
+        whole, whole_norm = go2_a1.whole, go2_a1.whole_norm
         inp, inp_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm, critic=False, output=False)
-        same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
         last = f"layer_{len(fresh['actor']) - 1}"
         for layer in fresh["actor"]:
             assert same(inp["actor"][layer], (fresh if layer == last else whole)["actor"][layer]), layer
@@ -142,32 +153,25 @@ class TestGo2ToA1IsTheIdentity:
         np.testing.assert_allclose(np.exp(np.asarray(restd["log_std"])), 0.3, rtol=1e-6)
         assert same(restd["actor"], inp["actor"])
 
-    def test_semantic_output_maps_only_what_the_actor_writes(self, robots):
+    def test_semantic_output_maps_only_what_the_actor_writes(self, go2_a1):
         """``critic=False, input_layer=False`` (mode semantic_output): the output layer, log-std
         and hidden layers are the whole map's; the input layer, normaliser and critic are the
         fresh network's."""
-        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
-        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
-        m = semantic.build_map(robots["go2"], robots["a1"])
-        whole, whole_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+        src, src_norm, fresh, fresh_norm, m = go2_a1.src, go2_a1.src_norm, go2_a1.fresh, go2_a1.fresh_norm, go2_a1.map
+        whole, whole_norm = go2_a1.whole, go2_a1.whole_norm
         out, out_norm = semantic.apply(m, src, src_norm, fresh, fresh_norm, critic=False, input_layer=False)
-        same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
         for layer in fresh["actor"]:
             assert same(out["actor"][layer], (fresh if layer == "layer_0" else whole)["actor"][layer]), layer
         assert not same(whole["actor"]["layer_0"], fresh["actor"]["layer_0"])
         assert same(out["log_std"], whole["log_std"]) and same(out["critic"], fresh["critic"])
         assert same(out_norm, fresh_norm) and not same(whole_norm, fresh_norm)
 
-    def test_keep_fresh_under_jit_picks_per_switch_and_keeps_the_fresh_std_at_zero_noise(self, robots):
+    def test_keep_fresh_under_jit_picks_per_switch_and_keeps_the_fresh_std_at_zero_noise(self, go2_a1):
         """The program's path: ``keep_fresh`` with traced switches, as ``jnp.where`` picks per
         variant. With ``noise_std=0`` a fresh output keeps the fresh network's own log-std."""
-        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
-        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots["a1"])
-        fresh = {**fresh, "log_std": fresh["log_std"] + 0.25}  # distinct from the source's
-        m = semantic.build_map(robots["go2"], robots["a1"])
-        whole, _ = semantic.apply(m, src, src_norm, fresh, fresh_norm)
+        whole = go2_a1.whole
+        fresh = {**go2_a1.fresh, "log_std": go2_a1.fresh["log_std"] + 0.25}  # distinct from the source's
         pick = jax.jit(lambda c, o, i: semantic.keep_fresh(whole, fresh, c, o, noise_std=0.0, fresh_input=i))
-        same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
         last = f"layer_{len(fresh['actor']) - 1}"
         for c, o, i in np.ndindex(2, 2, 2):
             got = pick(jnp.asarray(bool(c)), jnp.asarray(bool(o)), jnp.asarray(bool(i)))
@@ -432,7 +436,6 @@ class TestTransferTool:
         first = program.start_weights(jax.random.PRNGKey(0), load_source_params(cfg, program))
         params, norm = first["a1"].params, first["a1"].normalizer
         pick = lambda tree, p: jax.tree.map(lambda x: np.asarray(x[p]), tree)  # noqa: E731
-        same = lambda a, b: all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))  # noqa: E731
         sem, actor, paper, inp, outp = (pick(params, p) for p in range(5))
         assert same(actor["actor"], sem["actor"]) and same(actor["log_std"], sem["log_std"])
         assert same(pick(norm, 1), pick(norm, 0)) and same(pick(norm, 3), pick(norm, 0))
