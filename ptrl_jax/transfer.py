@@ -69,13 +69,13 @@ def transfer_policy(policy: dict[str, Any], target_robot: str, mode: str = "sema
                                       transfer_cfg.knee)
         except ValueError as e:
             raise ConfigError(str(e)) from None
+        mapped = semantic.fresh_switches(mode)
         params, norm = semantic.apply(tmap, policy["params"], policy["normalizer"], fresh, fresh_norm,
-                                      transfer_cfg.noise_std, critic=mode == "semantic",
-                                      output=mode != "semantic_input", input_layer=mode != "semantic_output")
+                                      transfer_cfg.noise_std, **mapped)
+        said = lambda kept: "mapped" if kept else "fresh"  # noqa: E731
         meta["transfer"] = {"mode": mode, "noise_std": transfer_cfg.noise_std, "knee": transfer_cfg.knee,
-                            "critic": "mapped" if mode == "semantic" else "fresh",
-                            "input_layer": "fresh" if mode == "semantic_output" else "mapped",
-                            "output_layer": "fresh" if mode == "semantic_input" else "mapped", **tmap.describe()}
+                            "critic": said(mapped["critic"]), "input_layer": said(mapped["input_layer"]),
+                            "output_layer": said(mapped["output"]), **tmap.describe()}
     to_np = lambda t: jax.tree.map(np.asarray, t)  # noqa: E731
     return {"params": to_np(params), "normalizer": to_np(norm), "meta": meta}
 

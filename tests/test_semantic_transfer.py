@@ -379,6 +379,12 @@ class TestVariantNames:
         with pytest.raises(ValueError, match="'scratch' transfers nothing"):
             variant("scratch@semantic")
 
+    def test_every_semantic_mode_says_what_starts_fresh(self):
+        from ptrl_jax.core.freeze import TRANSFER_MODES
+
+        assert set(semantic.FRESH_PARTS) == set(TRANSFER_MODES) - {"paper"}
+        assert semantic.fresh_switches("semantic_output") == {"critic": False, "output": True, "input_layer": False}
+
     def test_transfer_semantic_names_the_variants(self):
         from ptrl_jax.io.overrides import load_experiment
 

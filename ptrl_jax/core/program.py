@@ -26,12 +26,13 @@ from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import envs
 from envs.mujoco_engine import resolve_engine
 from ptrl_jax.core import normalization, semantic
 from ptrl_jax.config import ExperimentConfig, PPOHparams
-from ptrl_jax.core.freeze import empty_mask, preset_mask, transfer, variant
+from ptrl_jax.core.freeze import TRANSFER_MODES, empty_mask, preset_mask, transfer, variant
 from ptrl_jax.core.train import ProgressFn, Trainer, TrainState, make_train
 
 
@@ -153,7 +154,10 @@ def make_program(
     transfer_maps = ({r: semantic.build_map(source_env, e, cfg.transfer.joint_map, cfg.transfer.unmapped_blocks,
                                             cfg.transfer.knee)
                       for r, e in target_envs.items()} if cfg.semantic else {})
-    modes = [variant(p).mode_index for p in presets]  # 0 scratch, 1 paper, 2 semantic, 3 _actor, 4 _input, 5 _output
+    modes = [variant(p).mode_index for p in presets]  # 0 scratch, 1 + TRANSFER_MODES.index(mode)
+    # Per mode index, which parts (critic, output, input) a semantic variant keeps fresh.
+    fresh_parts = np.array([[part in semantic.FRESH_PARTS.get(m, ()) for part in ("critic", "output", "input")]
+                            for m in ("scratch", *TRANSFER_MODES)])
 
     def init_robot_targets(target: Trainer, robot: str, robot_index: int, source, target_key,
                            init_target=None) -> TrainState:
@@ -185,12 +189,15 @@ def make_program(
             return train_k, params, fresh_norm
         sem_params, sem_norm = semantic.apply(transfer_maps[robot], source["params"], source["normalizer"],
                                               fresh, fresh_norm, cfg.transfer.noise_std)
-        if any(m >= 3 for m in modes):  # fresh critic; _input: fresh output too; _output: fresh input
-            sem_params = semantic.keep_fresh(sem_params, fresh, fresh_critic=mode >= 3, fresh_output=mode == 4,
-                                             noise_std=cfg.transfer.noise_std, fresh_input=mode == 5)
+        if any(fresh_parts[m].any() for m in modes):  # static: a variant keeps some part fresh
+            fc, fo, fi = jnp.asarray(fresh_parts)[mode]
+            sem_params = semantic.keep_fresh(sem_params, fresh, fresh_critic=fc, fresh_output=fo,
+                                             noise_std=cfg.transfer.noise_std, fresh_input=fi)
+        else:
+            fi = False
         is_sem = mode >= 2
         params = jax.tree.map(lambda a, b: jnp.where(is_sem, a, b), sem_params, params)
-        mapped_norm = is_sem & (mode != 5)  # semantic_output reads through a fresh input layer
+        mapped_norm = is_sem & ~jnp.asarray(fi)  # a fresh input layer reads a fresh normaliser
         norm = jax.tree.map(lambda a, b: jnp.where(mapped_norm, a, b), sem_norm, fresh_norm)
         return train_k, params, norm
 

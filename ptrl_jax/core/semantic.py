@@ -283,6 +283,24 @@ def apply(tmap: TransferMap, source_params: Params, source_normalizer: dict, tar
     return params, normalizer
 
 
+FRESH_PARTS: dict[str, frozenset[str]] = {
+    "semantic": frozenset(),
+    "semantic_actor": frozenset({"critic"}),
+    "semantic_input": frozenset({"critic", "output"}),
+    "semantic_output": frozenset({"critic", "input"}),
+}
+"""Per semantic transfer mode (``freeze.TRANSFER_MODES``), the parts that start fresh instead of
+mapped: ``critic``; ``output`` (the actor's output layer and log-std); ``input`` (the actor's
+input layer and the normaliser). The one table ``apply``'s callers (the program, the transfer
+tool) read their switches from."""
+
+
+def fresh_switches(mode: str) -> dict[str, bool]:
+    """``apply``'s keyword switches for semantic mode ``mode`` (``FRESH_PARTS``)."""
+    parts = FRESH_PARTS[mode]
+    return {"critic": "critic" not in parts, "output": "output" not in parts, "input_layer": "input" not in parts}
+
+
 def keep_fresh(mapped: Params, fresh: Params, fresh_critic: bool | jax.Array, fresh_output: bool | jax.Array,
                noise_std: float = 0.0, fresh_input: bool | jax.Array = False) -> Params:
     """``mapped`` (``apply``'s params) with parts put back to ``fresh``'s: the critic where
