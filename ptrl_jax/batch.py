@@ -117,7 +117,8 @@ def run_batch(exp: str, cli: Mapping[str, Any], run: Callable[..., dict[str, Any
         else:
             table_rows += transfer_table.experiment_rows(
                 child, result["rows"], settings["transfer_preset"], cfg.report.threshold_fraction,
-                cfg.report.final_window, source=cfg.source.robot, metric=cfg.report.threshold_metric)
+                cfg.report.final_window, source=cfg.source.robot, metric=cfg.report.threshold_metric,
+                semantic_preset=cfg.report.semantic_preset)
             write_table(batch_dir, settings, configs, table_rows)
     return {"run_dir": batch_dir, "table_path": batch_dir / f"{settings['table']}.md", "rows": table_rows,
             "results": results, "interrupted": any(r["interrupted"] for r in results.values())}

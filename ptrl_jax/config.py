@@ -222,6 +222,11 @@ class ReportConfig:
     zero-shot table. The first rollout's reward is reported either way."""
     zero_shot_seconds: float = 20.0
     """Length of each zero-shot check rollout, s (the walking check's own 20 s by default)."""
+    semantic_preset: str = ""
+    """The semantic variant that Table IV reports in its semantic column, named before the runs
+    (``L2@semantic_output``): the preset rule of docs/transfer.md, which the source presets set
+    per source family. Empty: the semantic variant that reached the threshold soonest, chosen
+    after the fact on the seeds it is reported on (the row says which)."""
 
     def __post_init__(self):
         base, _, term = self.threshold_metric.partition("/")
@@ -234,6 +239,14 @@ class ReportConfig:
             raise ValueError("report.final_window must be >= 1")
         if self.zero_shot_seconds <= 0:
             raise ValueError(f"report.zero_shot_seconds must be > 0, got {self.zero_shot_seconds}")
+        if self.semantic_preset:
+            try:
+                mode = variant(self.semantic_preset).mode
+            except ValueError as e:
+                raise ValueError(f"report.semantic_preset: {e}") from None
+            if not mode.startswith("semantic"):
+                raise ValueError(f"report.semantic_preset must name a semantic variant (<preset>@semantic_actor, "
+                                 f"...), got {self.semantic_preset!r}")
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,9 @@ different programs, sharing the cores with whatever else ran, so compare env ste
 writes table4.md, table4.csv and variants.csv there (a folder that holds them is refused unless
 ``overwrite=true``). Keys: ``runs``, ``metric`` (default: the first run's
 ``report.threshold_metric``), ``fraction`` and ``window`` (likewise), ``transfer_preset`` (L2),
-``out``, ``overwrite``.
+``semantic`` (the semantic column's variant, named before the runs: default the first run's
+``report.semantic_preset``; ``semantic=best`` takes the best semantic variant, chosen after the
+runs), ``out``, ``overwrite``.
 """
 
 from __future__ import annotations
@@ -37,12 +39,12 @@ from typing import Any, Mapping, Sequence
 
 import yaml
 
-from ptrl_jax.config import TransferConfig
+from ptrl_jax.config import ReportConfig, TransferConfig
 from ptrl_jax.core.freeze import MODE_SEPARATOR
 from ptrl_jax.io import artifacts, transfer_table
 from ptrl_jax.io.overrides import ConfigError, coerce, flatten, parse_known_cli, to_dict
 
-KEYS = ("runs", "metric", "fraction", "window", "transfer_preset", "out", "overwrite")
+KEYS = ("runs", "metric", "fraction", "window", "transfer_preset", "semantic", "out", "overwrite")
 OUTPUTS = ("table4.md", "table4.csv", "variants.csv")
 
 
@@ -137,9 +139,10 @@ def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[st
 
 
 def build(run_dirs: Sequence[Path], metric: str | None = None, fraction: float | None = None,
-          window: int | None = None, transfer_preset: str = "L2") -> dict[str, Any]:
+          window: int | None = None, transfer_preset: str = "L2", semantic: str | None = None) -> dict[str, Any]:
     """The merged tables of ``run_dirs``: {"table": Table IV rows, "variants": every variant's
-    rows, "notes": [...], "markdown": str}."""
+    rows, "notes": [...], "markdown": str}. ``semantic``: the semantic column's variant (None: the
+    first run's ``report.semantic_preset``; ``best``: the best semantic variant)."""
     if not run_dirs:
         raise ConfigError("runs=[DIR,...]: name at least one finished run folder")
     runs = [(Path(d), *read_run(Path(d))) for d in run_dirs]
@@ -147,17 +150,26 @@ def build(run_dirs: Sequence[Path], metric: str | None = None, fraction: float |
     metric = metric or str(report.get("threshold_metric", "episode_reward"))
     fraction = float(fraction if fraction is not None else report.get("threshold_fraction", 0.9))
     window = int(window if window is not None else report.get("final_window", 10))
+    semantic = str(report.get("semantic_preset", "") if semantic is None else semantic)
+    semantic = "" if semantic == "best" else semantic
+    if semantic:
+        try:
+            ReportConfig(semantic_preset=semantic)
+        except ValueError as e:
+            raise ConfigError(f"semantic={semantic!r}: {e}") from None
     for run_dir, _, rows in runs:
         if rows and metric not in rows[0]:
             raise ConfigError(f"metric={metric!r}: {run_dir}/metrics.csv has no such column")
     table, variants, notes = [], [], [
         f"Threshold: {fraction:g} x scratch's final {metric} (mean over its seeds of the last {window} iterations)",
-        "Wall times come from separate programs that may have shared the cores: compare env steps"]
+        "Wall times come from separate programs that may have shared the cores: compare env steps",
+        (f"Semantic column: {semantic}, named before the runs (report.semantic_preset, or semantic=)" if semantic else
+         "Semantic column: each row's best semantic variant, chosen after the runs on the seeds it reports")]
     experiment = "+".join(sorted({d.parent.name for d, _, _ in runs}))
     for (source, target), g in merge_runs(runs).items():
         try:
             table.append(transfer_table.robot_row(experiment, source, target, g["rows"], transfer_preset, fraction, window, metric,
-                                                  require_transfer=False))
+                                                  require_transfer=False, semantic_preset=semantic))
             variants.append(transfer_table.variant_rows(source, target, g["rows"], fraction, window, metric))
         except ValueError as e:
             raise ConfigError(f"runs: {e}") from None
@@ -198,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         result = build(_run_list(args["runs"]), args.get("metric"),
                        coerce(args["fraction"], float, "fraction") if "fraction" in args else None,
                        coerce(args["window"], int, "window") if "window" in args else None,
-                       args.get("transfer_preset", "L2"))
+                       args.get("transfer_preset", "L2"), args.get("semantic"))
         if "out" in args:
             write(Path(args["out"]), result, coerce(args.get("overwrite", "false"), bool, "overwrite"))
         print(result["markdown"])

@@ -51,6 +51,8 @@ class TestOverrides:
         ("transfer.critic_warmup=-1", "transfer.critic_warmup must be a whole number of iterations >= 0"),
         ("scale=smoke transfer.critic_warmup=2", "transfer.critic_warmup=2 must be below target.ppo.num_iterations=2"),
         ("target.robot=xbot", "did you mean 'xbot_l'"),
+        ("report.semantic_preset=L2", "report.semantic_preset must name a semantic variant"),
+        ("report.semantic_preset=L2@semantik", "report.semantic_preset: variant 'L2@semantik': unknown transfer mode"),
         ("source.env.kp=[1,2,3]", None),  # caught when the env is built (3 values for 12 joints)
     ])
     def test_bad_input_is_refused_with_the_key_named(self, arg, message):

@@ -13,7 +13,7 @@ STEPS = [100, 200, 300, 400, 500]
 PPO = {"num_envs": 4, "unroll_length": 25, "num_iterations": 5}
 
 
-def make_run(path, curves, seed=0, knee="axis", ppo=PPO, source_checkpoint=""):
+def make_run(path, curves, seed=0, knee="axis", ppo=PPO, source_checkpoint="", report=None):
     """A finished run folder: config.yaml and metrics.csv with ``curves``
     ({(preset, seed index): reward per iteration}) as the target rows, go2 -> anymal_b."""
     path.mkdir(parents=True)
@@ -21,7 +21,8 @@ def make_run(path, curves, seed=0, knee="axis", ppo=PPO, source_checkpoint=""):
     cfg = {"name": path.parent.name, "seed": seed, "seeds": seeds, "source_checkpoint": source_checkpoint,
            "source": {"robot": "go2"}, "target": {"robot": "anymal_b", "ppo": dict(ppo), "env": {"kp": 80.0}},
            "transfer": {"mode": "paper", "knee": knee, "noise_std": 0.5},
-           "report": {"threshold_metric": "episode_reward", "threshold_fraction": 0.8, "final_window": 2}}
+           "report": {"threshold_metric": "episode_reward", "threshold_fraction": 0.8, "final_window": 2,
+                      **(report or {})}}
     (path / "config.yaml").write_text(yaml.safe_dump(cfg))
     rows = [{"stage": "target", "robot": "anymal_b", "preset": p, "seed": k, "iteration": i, "env_steps": STEPS[i],
              "wall_time_s": float(i), "episode_reward": r} for (p, k), rew in curves.items() for i, r in enumerate(rew)]
@@ -55,6 +56,25 @@ class TestMergedRuns:
         assert axis["steps_saved_mean"] == pytest.approx(-0.125) and axis["steps_saved_std"] == pytest.approx(0.125)
         assert math.isnan(by["scratch"]["steps_saved_mean"])
         assert "not run (L2)" in result["markdown"] and "-12.5 % ± 12.5 (2/2)" in result["markdown"]
+
+    def test_the_semantic_column_takes_the_preset_the_first_run_names(self, tmp_path):
+        curves = {**SCRATCH, ("L2@semantic_actor", 0): [3] * 5, ("L2@semantic_actor", 1): [3] * 5,
+                  ("L2@semantic_output", 0): [0, 0, 0, 0, 3], ("L2@semantic_output", 1): [0, 0, 0, 3, 3]}
+        run = make_run(tmp_path / "a" / "1", curves, report={"semantic_preset": "L2@semantic_output"})
+        (row,) = table4.build([run])["table"]
+        # named: 500 and 400 against 400: saved -0.25 and 0, though semantic_actor saved 0.75 on both
+        assert row["semantic_preset"] == "L2@semantic_output"
+        assert row["semantic_steps_saved_mean"] == pytest.approx(-0.125)
+        (best,) = table4.build([run], semantic="best")["table"]
+        assert best["semantic_preset"] == "L2@semantic_actor" and best["semantic_steps_saved_mean"] == pytest.approx(0.75)
+        assert "chosen after the runs" in table4.build([run], semantic="best")["markdown"]
+
+    def test_a_semantic_preset_that_is_not_a_semantic_variant_is_refused(self, tmp_path):
+        run = make_run(tmp_path / "a" / "1", SCRATCH)
+        with pytest.raises(ConfigError, match="semantic='L2'.*semantic variant"):
+            table4.build([run], semantic="L2")
+        with pytest.raises(ConfigError, match="unknown transfer mode 'semantik'"):
+            table4.build([run], semantic="L2@semantik")
 
     def test_a_setting_an_older_run_lacks_reads_as_its_default(self, tmp_path):
         """A run from before ``transfer.critic_warmup`` existed ran without a warm-up: its

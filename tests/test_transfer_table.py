@@ -89,7 +89,28 @@ class TestRobotRow:
         avg = transfer_table.average_row([row])
         assert avg["semantic_steps_saved_mean"] == pytest.approx(0.625)
         md = transfer_table.format_markdown([row])
-        assert "(L2@semantic) | +62.5 % ± 12.5 (2/2)" in md and "2.50 h / 3.00 h (17 %)" in md
+        assert "(L2@semantic; best of 2 semantic variant(s), chosen after the runs) | +62.5 % ± 12.5 (2/2)" in md
+        assert "2.50 h / 3.00 h (17 %)" in md
+
+    def test_a_semantic_preset_named_before_the_runs_is_reported_even_when_another_is_faster(self):
+        curves = {**self.CURVES,
+                  ("L2@semantic_output", 0): [0, 0, 0, 3, 3], ("L2@semantic_output", 1): [0, 0, 0, 0, 3],  # 400, 500
+                  ("L2@semantic_actor", 0): [3, 3, 3, 3, 3], ("L2@semantic_actor", 1): [3, 3, 3, 3, 3]}    # 100, 100
+        (row,) = transfer_table.experiment_rows("go2_to_xbot", rows_of(curves), "L2", 0.8, 2,
+                                                semantic_preset="L2@semantic_output")
+        assert row["semantic_preset"] == "L2@semantic_output" and row["semantic_choice"] == "named before the runs"
+        # seed 0: 1 - 400/400 = 0; seed 1: 1 - 500/400 = -0.25
+        assert row["semantic_steps_saved_mean"] == pytest.approx(-0.125)
+        md = transfer_table.format_markdown([row])
+        assert "semantic transfer (preset named before the runs)" in md and "(L2@semantic_output) | -12.5 % ± 12.5" in md
+
+    def test_a_named_semantic_preset_that_did_not_run_reads_not_run(self):
+        curves = {**self.CURVES, ("L2@semantic_actor", 0): [3] * 5, ("L2@semantic_actor", 1): [3] * 5}
+        (row,) = transfer_table.experiment_rows("go2_to_xbot", rows_of(curves), "L2", 0.8, 2,
+                                                semantic_preset="L2@semantic_output")
+        assert "semantic_steps_saved_mean" not in row and row["semantic_missing"] == "L2@semantic_output"
+        assert "not run (L2@semantic_output, named before the runs)" in transfer_table.format_markdown([row])
+        assert "semantic_steps_saved_mean" not in transfer_table.average_row([row])
 
     def test_a_semantic_variant_that_never_reaches_ranks_last(self):
         curves = {**self.CURVES,
@@ -167,7 +188,11 @@ class TestBatchConfigs:
         assert list(configs) == ["go2_to_xbot", "xbot_to_all", "go2_to_a1", "go2_to_anymal_c"]
         assert settings["transfer_preset"] == "L2"
         for cfg in configs.values():
-            assert cfg.scale == scale and {"L2", "L2@semantic", "L2@semantic_actor", "scratch"} == set(cfg.variants)
+            assert cfg.scale == scale and {"L2", "L2@semantic", "L2@semantic_actor", "L2@semantic_output",
+                                           "scratch"} == set(cfg.variants)
+            # the preset rule: the semantic column is named by the source's family, before the runs
+            rule = {"go2": "L2@semantic_actor", "xbot_l": "L2@semantic_output"}[cfg.source.robot]
+            assert cfg.report.semantic_preset == rule
         paper = [r for name in ("go2_to_xbot", "xbot_to_all") for r in configs[name].targets]
         assert len(paper) == 8 == len(set(paper))  # every robot of the paper is a target once
         assert [configs[n].target.robot for n in ("go2_to_a1", "go2_to_anymal_c")] == ["a1", "anymal_c"]

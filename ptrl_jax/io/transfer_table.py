@@ -11,9 +11,11 @@ from finished runs. The rule, per target robot of an experiment:
 - saved = 1 - transfer / scratch, per seed (seeds are paired: same initialisation of the
   non-transferred layers and same env stream), then mean and std over the seeds where both
   reached the threshold;
-- the same for the semantic transfer (``ptrl_jax/core/semantic.py``): its best variant among those
-  named ``<preset>@semantic[_actor|_input]`` in the run, by mean env steps to
-  the threshold (the choice is named in the row, and made on the same seeds it is reported on).
+- the same for the semantic transfer (``ptrl_jax/core/semantic.py``): the variant named before the
+  runs (``report.semantic_preset``, the preset rule; 'not run' where the runs lack it), or, where
+  none is named, the best of the variants named ``<preset>@semantic[_actor|_input|_output]`` by
+  mean env steps to the threshold, a choice made after the fact on the same seeds it is reported
+  on. Each row names its variant and how it was chosen (``semantic_choice``).
 
 In one program every variant runs in lockstep under ``vmap`` and shares one clock, so the wall
 time of each run is the stage's time at that iteration, and the wall-time saving equals the
@@ -57,7 +59,7 @@ FIELDS = (
     "seeds_both_reached",
     "semantic_preset", "semantic_final_reward", "semantic_steps_mean", "semantic_steps_std",
     "semantic_wall_s_mean", "semantic_steps_saved_mean", "semantic_steps_saved_std",
-    "semantic_wall_saved_mean", "semantic_wall_saved_std", "semantic_seeds_both_reached",
+    "semantic_wall_saved_mean", "semantic_wall_saved_std", "semantic_seeds_both_reached", "semantic_choice",
     "paper_hours_transfer", "paper_hours_scratch", "paper_saved",
 )
 
@@ -109,12 +111,14 @@ def _compare(scratch: Mapping[str, np.ndarray], other: Mapping[str, np.ndarray])
 def robot_row(
     experiment: str, source: str, target: str, rows: Sequence[Mapping[str, Any]], transfer_preset: str,
     threshold_fraction: float, final_window: int, metric: str = "episode_reward", require_transfer: bool = True,
+    semantic_preset: str = "",
 ) -> dict[str, Any]:
     """One Table IV row from the target rows of one robot (scratch and ``transfer_preset``
     present; the semantic columns are filled when a semantic variant ran, ``is_semantic``).
     ``metric``: the column whose curve reaches the threshold (``report.threshold_metric``).
     ``require_transfer=False``: a missing ``transfer_preset`` leaves the paper's columns empty
-    (``transfer_ran`` False, shown as 'not run') instead of refusing the row."""
+    (``transfer_ran`` False, shown as 'not run') instead of refusing the row. ``semantic_preset``:
+    the semantic column's variant, named before the runs; empty: the best semantic variant."""
     curves = curves_by_preset(rows, metric)
     needed = ("scratch", transfer_preset) if require_transfer else ("scratch",)
     missing = [p for p in needed if p not in curves]
@@ -143,6 +147,19 @@ def robot_row(
                 **{k: paper[k] for k in ("steps_saved_mean", "steps_saved_std", "wall_saved_mean",
                                          "wall_saved_std", "seeds_both_reached")}})
     semantic = [p for p in curves if is_semantic(p)]
+    if semantic_preset:
+        # A merged run's variants may carry their differing transfer settings ("L2@semantic_actor
+        # [knee=flexion]"); the rule names the bare variant, so any of its settings qualify.
+        named = [p for p in semantic if p == semantic_preset or p.startswith(semantic_preset + " [")]
+        choice = "named before the runs"
+        if len(named) > 1:
+            raise ValueError(f"{experiment} -> {target}: report.semantic_preset={semantic_preset!r} matches "
+                             f"{len(named)} variants {named}; name one (runs with different transfer settings)")
+        semantic = named
+    else:
+        choice = f"best of {len(semantic)} semantic variant(s), chosen after the runs"
+    if semantic_preset and not semantic:
+        out.update({"semantic_choice": choice, "semantic_missing": semantic_preset})
     if semantic:
         def rank(p):  # fewest mean steps to threshold; a seed that never reaches counts as never
             steps = times[p]["steps"]
@@ -151,7 +168,7 @@ def robot_row(
         best = min(semantic, key=rank)
         sem = _compare(times["scratch"], times[best])
         out.update({"semantic_preset": best, "semantic_final_reward": float(final[best].mean()),
-                    **{f"semantic_{k}": v for k, v in sem.items()}})
+                    "semantic_choice": choice, **{f"semantic_{k}": v for k, v in sem.items()}})
     hours = PAPER_HOURS.get(target)
     if hours:
         out.update({"paper_hours_transfer": hours[0], "paper_hours_scratch": hours[1],
@@ -162,13 +179,16 @@ def robot_row(
 def experiment_rows(
     experiment: str, metrics: Sequence[Mapping[str, Any]], transfer_preset: str,
     threshold_fraction: float, final_window: int, source: str | None = None, metric: str = "episode_reward",
+    semantic_preset: str = "",
 ) -> list[dict[str, Any]]:
     """Table IV rows of one experiment's metrics.csv rows: one per target robot. ``source``
-    names the source robot where the rows have no source stage (a ``source_checkpoint`` run)."""
+    names the source robot where the rows have no source stage (a ``source_checkpoint`` run);
+    ``semantic_preset``: as ``robot_row``."""
     source = source or next((str(r["robot"]) for r in metrics if r["stage"] == "source"), "?")
     targets = list(dict.fromkeys(str(r["robot"]) for r in metrics if r["stage"] == "target"))
     return [robot_row(experiment, source, robot, [r for r in metrics if r["stage"] == "target" and r["robot"] == robot],
-                      transfer_preset, threshold_fraction, final_window, metric) for robot in targets]
+                      transfer_preset, threshold_fraction, final_window, metric, semantic_preset=semantic_preset)
+            for robot in targets]
 
 
 def average_row(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -204,29 +224,34 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = ()
     def hours(h):
         return f"{h:.2f} h" if h >= 1 else f"{60 * h:.1f} min"
 
-    has_sem = any(r.get("semantic_preset") for r in rows)
+    has_sem = any(r.get("semantic_choice") for r in rows)
+    named = [r for r in rows if "named before the runs" in r.get("semantic_choice", "")]
     lines = ["# Table IV: training to threshold with transfer and from scratch", ""]
     lines += [f"- {n}" for n in notes]
     head = ("| source -> target | seeds | threshold | scratch: env steps to threshold | paper transfer "
             "(preset): steps | saved | ")
     rule = "|---|---|---|---|---|---|"
     if has_sem:
-        head += "semantic transfer (best preset): steps | saved | "
+        head += ("semantic transfer (preset named before the runs): steps | saved | " if len(named) == len(rows)
+                 else "semantic transfer (preset; how chosen): steps | saved | ")
         rule += "---|---|"
     head += "final reward scratch / paper / semantic | wall s to threshold scratch / paper / semantic | paper's hours with / without (saved) |"
     rule += "---|---|---|"
     lines += ["", head, rule]
     for r in rows:
         sem = bool(r.get("semantic_preset"))
+        how = "" if len(named) == len(rows) else f"; {r.get('semantic_choice', '')}"
         line = (f"| {r['source']} -> {r['target']} | {r['seeds']} | {f(r['threshold'], '{:.3g}')} | "
                 f"{steps(r['scratch_steps_mean'], r['scratch_steps_std'])} | ")
         line += (f"{steps(r['transfer_steps_mean'], r['transfer_steps_std'])} ({r['transfer_preset']}) | "
                  f"{pct(r['steps_saved_mean'], r['steps_saved_std'])} ({r['seeds_both_reached']}/{r['seeds']}) | "
                  if r.get("transfer_ran", True) else f"not run ({r['transfer_preset']}) | | ")
         if has_sem:
-            line += (f"{steps(r['semantic_steps_mean'], r['semantic_steps_std'])} ({r['semantic_preset']}) | "
+            line += (f"{steps(r['semantic_steps_mean'], r['semantic_steps_std'])} ({r['semantic_preset']}{how}) | "
                      f"{pct(r['semantic_steps_saved_mean'], r['semantic_steps_saved_std'])} "
-                     f"({r['semantic_seeds_both_reached']}/{r['seeds']}) | " if sem else "not run | | ")
+                     f"({r['semantic_seeds_both_reached']}/{r['seeds']}) | " if sem
+                     else f"not run ({r['semantic_missing']}, {r['semantic_choice']}) | | " if r.get("semantic_missing")
+                     else "not run | | ")
         line += (f"{f(r['scratch_final_reward'], '{:.2f}')} / {f(r['transfer_final_reward'], '{:.2f}')} / "
                  f"{f(r.get('semantic_final_reward', np.nan), '{:.2f}')} | "
                  f"{f(r['scratch_wall_s_mean'], '{:.0f}')} / {f(r['transfer_wall_s_mean'], '{:.0f}')} / "
