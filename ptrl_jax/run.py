@@ -166,6 +166,9 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     if resume_from is not None:
         state, meta = artifacts.load_state(run_dir / RESUME_STATE, jax.eval_shape(init, key, *inputs))
         if shardings is not None:
+            # device_put checks that every process holds the same state, a collective: meet first
+            # (a loaded CI machine once had process 1 more than Gloo's 30 s behind here)
+            hosts.barrier("loaded")
             state = jax.device_put(state, shardings)
         progress.restore(meta)
     else:
