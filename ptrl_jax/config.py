@@ -14,8 +14,8 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 
 from envs.semantics import KNEE_CONVENTIONS
-from ptrl_jax.core.freeze import (FREEZE_PRESETS, MODE_SEPARATOR, RATIO_PREFIX, TRANSFER_MODES, ratio_name, variant,
-                                  with_mode)
+from ptrl_jax.core.freeze import (FREEZE_PRESETS, MODE_SEPARATOR, RATIO_PREFIX, TRANSFER_MODES, is_semantic, ratio_name,
+                                  variant, with_mode)
 
 
 class ConfigError(ValueError):
@@ -241,10 +241,10 @@ class ReportConfig:
             raise ValueError(f"report.zero_shot_seconds must be > 0, got {self.zero_shot_seconds}")
         if self.semantic_preset:
             try:
-                mode = variant(self.semantic_preset).mode
+                variant(self.semantic_preset)
             except ValueError as e:
                 raise ValueError(f"report.semantic_preset: {e}") from None
-            if not mode.startswith("semantic"):
+            if not is_semantic(self.semantic_preset):
                 raise ValueError(f"report.semantic_preset must name a semantic variant (<preset>@semantic_actor, "
                                  f"...), got {self.semantic_preset!r}")
 

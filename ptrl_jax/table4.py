@@ -40,7 +40,7 @@ from typing import Any, Mapping, Sequence
 import yaml
 
 from ptrl_jax.config import ReportConfig, TransferConfig
-from ptrl_jax.core.freeze import MODE_SEPARATOR
+from ptrl_jax.core.freeze import is_semantic
 from ptrl_jax.io import artifacts, transfer_table
 from ptrl_jax.io.overrides import ConfigError, coerce, flatten, parse_known_cli, to_dict
 
@@ -121,7 +121,7 @@ def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[st
             suffix = (" [" + ", ".join(f"{k.split('.', 1)[1]}={tcfg.get(k)}" for k in varying) + "]") if varying else ""
             for r in rows:
                 name = str(r["preset"])
-                label = name + suffix if name.partition(MODE_SEPARATOR)[2].startswith("semantic") else name
+                label = name + suffix if is_semantic(name) else name
                 seed = (root, int(r["seed"]))
                 if (label, seed) in seen and seen[(label, seed)] != run_dir:
                     raise ConfigError(f"runs: {label!r} seed {seed[1]} of seed root {root} is in both "

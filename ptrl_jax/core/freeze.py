@@ -102,6 +102,12 @@ def ratio_preset(rho: float) -> FreezePreset:
     return FreezePreset(ratio_name(rho), transfer=True, frozen=("L1", "L2"), ratio=rho)
 
 
+def is_semantic(name: str) -> bool:
+    """Whether variant ``name`` transfers semantically (``<preset>@semantic``, ``@semantic_actor``,
+    ``@semantic_input`` or ``@semantic_output``)."""
+    return name.partition(MODE_SEPARATOR)[2].startswith("semantic")
+
+
 def with_mode(name: str, mode: str) -> str:
     """The variant name of ``name`` transferred in ``mode``: ``('L2', 'semantic')`` ->
     'L2@semantic'; paper-mode and non-transferring names stay bare."""

@@ -18,8 +18,9 @@ What changes at the edges, and nothing in the jitted core:
 - process 0 alone writes the run folder; the others compute and wait;
 - host reads of env-sharded leaves (checkpoints, outputs) gather them first (``fetch``);
 - the processes meet at barriers of the coordination service (``barrier``) after compiling,
-  before a resumed state is placed on the devices, and after every write of process 0, because Gloo gives a peer only about 30 s to join a collective,
-  less than one process's compile or write can lag another's (measured, docs/scaling.md);
+  before a resumed state is placed on the devices, and after every write of process 0, because
+  Gloo gives a peer only about 30 s to join a collective, less than one process's compile, load or
+  write can lag another's (measured, docs/scaling.md);
 - a Ctrl-C or SIGTERM on any process stops all of them at the same slice (``any_process``);
 - a process other than 0 checks that the coordinator's port answers within ``host_timeout``
   seconds before it initializes: an unreachable coordinator otherwise ends the process from C++

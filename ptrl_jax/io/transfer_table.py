@@ -29,7 +29,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ptrl_jax.core.freeze import MODE_SEPARATOR
+from ptrl_jax.core.freeze import is_semantic
 from ptrl_jax.io.summary import curves_by_preset, fmt_number
 
 PAPER_AVERAGE_SAVING = 0.20
@@ -44,11 +44,8 @@ PAPER_HOURS: dict[str, tuple[float, float]] = {
 """Paper Table IV per target robot: (hours with transfer, hours without), 4096 envs on one RTX
 4090; the paper gives no seeds, thresholds or env steps."""
 
-def is_semantic(name: str) -> bool:
-    """Whether variant ``name`` transfers semantically (``<preset>@semantic``,
-    ``<preset>@semantic_actor``, ``<preset>@semantic_input`` or ``<preset>@semantic_output``):
-    the candidates for the semantic column."""
-    return name.partition(MODE_SEPARATOR)[2].startswith("semantic")
+NAMED_BEFORE = "named before the runs"
+"""``semantic_choice`` of a row whose semantic variant ``report.semantic_preset`` named."""
 
 FIELDS = (
     "experiment", "source", "target", "transfer_preset", "seeds", "threshold", "threshold_metric",
@@ -147,19 +144,17 @@ def robot_row(
                 **{k: paper[k] for k in ("steps_saved_mean", "steps_saved_std", "wall_saved_mean",
                                          "wall_saved_std", "seeds_both_reached")}})
     semantic = [p for p in curves if is_semantic(p)]
+    choice = f"best of {len(semantic)} semantic variant(s), chosen after the runs"
     if semantic_preset:
         # A merged run's variants may carry their differing transfer settings ("L2@semantic_actor
         # [knee=flexion]"); the rule names the bare variant, so any of its settings qualify.
-        named = [p for p in semantic if p == semantic_preset or p.startswith(semantic_preset + " [")]
-        choice = "named before the runs"
-        if len(named) > 1:
+        semantic = [p for p in semantic if p == semantic_preset or p.startswith(semantic_preset + " [")]
+        if len(semantic) > 1:
             raise ValueError(f"{experiment} -> {target}: report.semantic_preset={semantic_preset!r} matches "
-                             f"{len(named)} variants {named}; name one (runs with different transfer settings)")
-        semantic = named
-    else:
-        choice = f"best of {len(semantic)} semantic variant(s), chosen after the runs"
-    if semantic_preset and not semantic:
-        out.update({"semantic_choice": choice, "semantic_missing": semantic_preset})
+                             f"{len(semantic)} variants {semantic}; name one (runs with different transfer settings)")
+        choice = NAMED_BEFORE
+        if not semantic:
+            out.update({"semantic_choice": choice, "semantic_missing": semantic_preset})
     if semantic:
         def rank(p):  # fewest mean steps to threshold; a seed that never reaches counts as never
             steps = times[p]["steps"]
@@ -225,7 +220,7 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = ()
         return f"{h:.2f} h" if h >= 1 else f"{60 * h:.1f} min"
 
     has_sem = any(r.get("semantic_choice") for r in rows)
-    named = [r for r in rows if "named before the runs" in r.get("semantic_choice", "")]
+    named = [r for r in rows if r.get("semantic_choice") == NAMED_BEFORE]
     lines = ["# Table IV: training to threshold with transfer and from scratch", ""]
     lines += [f"- {n}" for n in notes]
     head = ("| source -> target | seeds | threshold | scratch: env steps to threshold | paper transfer "
