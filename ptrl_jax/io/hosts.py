@@ -61,7 +61,8 @@ class HostSpec:
     process_id: int | None
     """This process's index, 0 to ``num_processes - 1`` (None: from the cluster's environment)."""
     timeout_s: float = DEFAULT_TIMEOUT_S
-    """Seconds to wait for the coordinator and at each barrier."""
+    """Seconds to wait for the coordinator, at each barrier, and for a silent process's heartbeat
+    (at least jax's 100 s)."""
 
 
 def parse_host_args(argv: list[str]) -> tuple[HostSpec | None, list[str]]:
@@ -138,8 +139,11 @@ def start(spec: HostSpec) -> None:
     print(f"{who}: joining the others at coordinator={spec.coordinator or '(from the cluster environment)'}, "
           f"waiting up to {spec.timeout_s:g} s (host_timeout)", file=sys.stderr, flush=True)
     try:
+        # Heartbeats too wait host_timeout, not jax's 100 s: on 2 loaded cores a CI run once saw
+        # process 0 declared dead mid-compile ("stopped sending heartbeats") and both exit.
         jax.distributed.initialize(spec.coordinator, spec.num_processes, spec.process_id,
-                                   initialization_timeout=max(1, int(spec.timeout_s)))
+                                   initialization_timeout=max(1, int(spec.timeout_s)),
+                                   heartbeat_timeout_seconds=max(100, int(spec.timeout_s)))
     except RuntimeError as e:  # the backend exists already, or the cluster was not detected
         raise HostsError(f"jax.distributed could not start: {e}. Host keys work on the command line "
                          "(python -m ptrl_jax.run ... coordinator=...), before anything runs jax") from None
