@@ -70,6 +70,14 @@ def walking_checker(cfg: ExperimentConfig):
     return lambda policy: evaluate.run_walking_check(policy, sim="mujoco", seconds=cfg.report.zero_shot_seconds)
 
 
+def source_checker(cfg: ExperimentConfig):
+    """The report's check of the source: ``walking_checker`` on the written ``source.npz``."""
+    from ptrl_jax import evaluate
+
+    check = walking_checker(cfg)
+    return lambda path: check(evaluate.policy_from_checkpoint(str(path)))
+
+
 # Compiled programs of this process, by what shapes them, for runs without a progress hook (a
 # hook binds its own Progress). A notebook sweep, or a resume in the same process, then skips the
 # trace and compile: tracing the two MJX pipelines alone takes most of a minute on 2 cores.
@@ -159,6 +167,7 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
     # the run trains cannot then break its report (it did once, 40 minutes in; the state was
     # saved, and `resume=` wrote the report).
     checker = walking_checker(cfg)
+    check_source = source_checker(cfg) if cfg.report.zero_shot_check else None
     main = hosts.is_main()  # with several processes only process 0 writes the run folder
     # after compiling: a refused run writes nothing
     run_dir = resume_from or run_dir or (new_run_dir(cfg) if main else None)
@@ -212,7 +221,7 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
         if cfg.report.zero_shot_check and (cfg.trains_source or cfg.source_checkpoint or cfg.init_checkpoint):
             initial = jax.device_get(program.initial_weights(state))
         result = save_outputs(cfg, run_dir, out, progress.times, notes, progress.stage_start, initial,
-                              checker=checker)
+                              checker=checker, source_checker=check_source)
         (run_dir / RESUME_STATE).unlink(missing_ok=True)  # finished: the final checkpoints replace it
     hosts.barrier("written", timeout_s=3600.0)  # the others wait for process 0's report and checks
     result.update({"run_dir": run_dir, "compile_s": compile_s, "run_s": run_s, "output": out,

@@ -33,6 +33,17 @@ class TestSmokeRunOutputs:
         # checkpoint_every=1: one iteration per call, so each wall time is a measured stamp
         assert "Progress was off" not in (run_dir / "report.md").read_text()
 
+    def test_report_gives_the_source_walking_check(self, smoke_run):
+        from ptrl_jax import evaluate
+        from ptrl_jax.io.outputs import format_source_checks
+
+        cfg, run_dir = smoke_run
+        policy = evaluate.policy_from_checkpoint(str(run_dir / "source.npz"))
+        verdicts = evaluate.run_walking_check(policy, sim="mujoco", seconds=cfg.report.zero_shot_seconds)
+        source_line = next(line for line in (run_dir / "report.md").read_text().splitlines()
+                           if line.startswith("- Source go2:"))
+        assert source_line.endswith("; " + format_source_checks(verdicts, cfg.report.zero_shot_seconds))
+
     def test_metrics_rows_and_columns(self, smoke_run):
         cfg, run_dir = smoke_run
         rows = list(csv.DictReader(open(run_dir / "metrics.csv")))
@@ -142,3 +153,23 @@ class TestCommandGridOfTheSmokeSource:
         rows = (out / "grid.csv").read_text().splitlines()
         assert len(rows) == 5 and rows[0].endswith("push_fall_rate")
         assert "Walking check 'walk'" in (out / "grid.md").read_text() and "wrote" in capsys.readouterr().out
+
+
+class TestSourceCheckLine:
+    """The report's one-line verdict on the source, on hand-made verdicts."""
+
+    @staticmethod
+    def verdict(check, vx, speed, passed):
+        return {"check": check, "command": [vx, 0.0, 0.0], "passed": passed, "time_survived_s": 20.0,
+                "mean_velocity": [speed, 0.0, 0.0]}
+
+    def test_passes_only_when_every_check_passes(self):
+        from ptrl_jax.io.outputs import format_source_checks
+
+        stand, walk = self.verdict("stand", 0.0, 0.004, True), self.verdict("walk", 0.3, 0.074, False)
+        assert format_source_checks([stand, walk]) == (
+            "the source FAILS its walking check (MuJoCo C, mean action, 20 s per command: "
+            "stand vx 0: 20.0 s, 0.00 m/s, pass; walk vx 0.3: 20.0 s, 0.07 m/s, fail)")
+        walk["passed"] = True
+        assert format_source_checks([stand, walk], seconds=1.0).startswith(
+            "the source passes its walking check (MuJoCo C, mean action, 1 s per command: ")

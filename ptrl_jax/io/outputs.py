@@ -54,8 +54,11 @@ def metric_rows(
 def save_outputs(
     cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput, times: dict, extra_notes=(), stage_start=None,
     initial: dict | None = None, checker: Callable[[dict], list] | None = None,
+    source_checker: Callable[[Path], list] | None = None,
 ) -> dict:
-    """Every file of the run folder. ``initial``: ``Program.initial_weights`` of the final state,
+    """Every file of the run folder. ``source_checker(path) -> verdicts``, when given, checks the
+    written ``source.npz`` (the family's walking check of the source policy) for the report's
+    source line. ``initial``: ``Program.initial_weights`` of the final state,
     for the zero-shot walking checks (none without it), which ``checker(policy) -> verdicts``
     runs (``ptrl_jax.run`` passes the family's walking check in MuJoCo C)."""
     rows = metric_rows(cfg, out, times, stage_start)
@@ -78,6 +81,10 @@ def save_outputs(
         src_final = np.mean([r for _, r in source_curve][-cfg.report.final_window:])
         source_note = (f"Source {cfg.source.robot}: {cfg.source.ppo.num_iterations} iterations x "
                        f"{cfg.source.ppo.env_steps_per_iteration} env steps, final mean episode reward {src_final:.3f}")
+    source_checks = None
+    if source_checker is not None and transfers and cfg.checkpoint and not cfg.init_checkpoint:
+        source_checks = source_checker(run_dir / "source.npz")
+        source_note += "; " + format_source_checks(source_checks, cfg.report.zero_shot_seconds)
     common = [
         source_note,
         f"Final reward = mean over the last {cfg.report.final_window} iterations; AUC = reward "
@@ -116,7 +123,7 @@ def save_outputs(
     artifacts.atomic_write_text(run_dir / "report.md", "\n".join(sections))
     table, threshold = tables[cfg.target.robot]
     return {"rows": rows, "summary": table, "threshold": threshold,
-            "summaries": {robot: t for robot, (t, _) in tables.items()}}
+            "summaries": {robot: t for robot, (t, _) in tables.items()}, "source_checks": source_checks}
 
 
 def zero_shot_rows(cfg: ExperimentConfig, robot: str, rows, initial: Any,
@@ -152,6 +159,21 @@ def zero_shot_rows(cfg: ExperimentConfig, robot: str, rows, initial: Any,
     return out
 
 
+def format_checks(verdicts: list[dict[str, Any]]) -> str:
+    """One policy's walking-check verdicts on one line: per check, time survived, forward speed
+    and pass or fail."""
+    return "; ".join(f"{v['check']} vx {v['command'][0]:g}: {v['time_survived_s']:.1f} s, "
+                     f"{v['mean_velocity'][0]:.2f} m/s, {'pass' if v['passed'] else 'fail'}" for v in verdicts)
+
+
+def format_source_checks(verdicts: list[dict[str, Any]], seconds: float = 20.0) -> str:
+    """The report's verdict on the source policy: whether it passes its family's walking check
+    (a source that stands carries no gait to the target), with every check's line."""
+    verdict = "passes" if all(v["passed"] for v in verdicts) else "FAILS"
+    return (f"the source {verdict} its walking check (MuJoCo C, mean action, {seconds:g} s per command: "
+            f"{format_checks(verdicts)})")
+
+
 def format_zero_shot(rows: list[dict[str, Any]], seconds: float = 20.0) -> str:
     lines = ["## Zero-shot: the initialisations before any fine-tuning", "",
              "First rollout: mean reward per env step over seeds, sampled actions (the first iteration's "
@@ -160,9 +182,8 @@ def format_zero_shot(rows: list[dict[str, Any]], seconds: float = 20.0) -> str:
              "| initialisation (variant) | first rollout, reward per step | walking check (survived, forward speed) |",
              "|---|---|---|"]
     for r in rows:
-        checks = "not run (report.zero_shot_check=false)" if r["checks"] is None else "; ".join(
-            f"{v['check']} vx {v['command'][0]:g}: {v['time_survived_s']:.1f} s, {v['mean_velocity'][0]:.2f} m/s, "
-            f"{'pass' if v['passed'] else 'fail'}" for v in r["checks"])
+        checks = ("not run (report.zero_shot_check=false)" if r["checks"] is None
+                  else format_checks(r["checks"]))
         lines.append(f"| {r['initialisation']} ({r['variant']}) | {r['first_reward_mean']:.4f} ± "
                      f"{r['first_reward_std']:.4f} | {checks} |")
     return "\n".join(lines) + "\n"
