@@ -15,8 +15,11 @@ the same keys whatever variants it holds (``ptrl_jax.core.program``). Runs are g
   keeps the old behaviour);
 - seeds are labelled by (seed root, index), so seed 0 of ``seed=1`` is a seed of its own;
 - where the runs' transfer settings (``transfer.*``) differ, each semantic variant's name gets
-  the settings that differ (``L2@semantic_actor [knee=axis]``); the same variant and seed in two
-  runs is refused, naming both;
+  the settings that differ (``L2@semantic_actor [knee=axis]``); where the settings their configs
+  give the source (``source.*``) differ, every transferring variant's name gets those
+  (``L2@semantic_output [source.ppo.num_iterations=1400]``: one target stage, two sources; a
+  loaded source is read as trained the way its run's config says); the same variant and seed in
+  two runs is refused, naming both;
 - the threshold is ``fraction`` x the mean over every scratch seed of the last ``window``
   iterations of ``metric`` (report.md's rule).
 
@@ -28,7 +31,8 @@ writes table4.md, table4.csv and variants.csv there (a folder that holds them is
 ``report.threshold_metric``), ``fraction`` and ``window`` (likewise), ``transfer_preset`` (L2),
 ``semantic`` (the semantic column's variant, named before the runs: default the first run's
 ``report.semantic_preset``; ``semantic=best`` takes the best semantic variant, chosen after the
-runs), ``out``, ``overwrite``.
+runs; a merged name with its settings, ``semantic="L2@semantic_output [source.ppo.num_iterations=1400]"``,
+picks one of several), ``out``, ``overwrite``.
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from typing import Any, Mapping, Sequence
 import yaml
 
 from ptrl_jax.config import ReportConfig, TransferConfig
-from ptrl_jax.core.freeze import is_semantic
+from ptrl_jax.core.freeze import is_semantic, variant
 from ptrl_jax.io import artifacts, transfer_table
 from ptrl_jax.io.overrides import ConfigError, coerce, flatten, parse_known_cli, to_dict
 
@@ -107,21 +111,27 @@ def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[st
                         + "), so their steps to a threshold are not comparable")
             # A key an older run's config lacks came later, with a default that keeps the old behaviour.
             g["transfer"].append({**TRANSFER_DEFAULTS, **flatten(cfg.get("transfer", {}), "transfer.")})
+            g.setdefault("source", []).append(flatten(cfg.get("source", {}), "source."))
             g["rows"].append((run_dir, cfg, [r for r in rows if r["stage"] == "target" and str(r["robot"]) == robot]))
     out = {}
     for key, g in groups.items():
         # The transfer settings that differ between the runs name the semantic variants.
         keys = sorted({k for t in g["transfer"] for k in t})
         varying = [k for k in keys if len({repr(t.get(k)) for t in g["transfer"]}) > 1]
+        # Source settings are compared where every run's config gives them (an older run may lack a key).
+        shared = set.intersection(*(set(s) for s in g["source"]))
+        source_varying = [k for k in sorted(shared) if len({repr(s[k]) for s in g["source"]}) > 1]
         seen: dict[tuple[str, tuple[int, int]], Path] = {}
         seed_ids: dict[tuple[int, int], int] = {}
         merged = []
-        for (run_dir, cfg, rows), tcfg in zip(g["rows"], g["transfer"]):
+        for (run_dir, cfg, rows), tcfg, scfg in zip(g["rows"], g["transfer"], g["source"]):
             root = int(cfg.get("seed", 0))
-            suffix = (" [" + ", ".join(f"{k.split('.', 1)[1]}={tcfg.get(k)}" for k in varying) + "]") if varying else ""
+            transfer_parts = [f"{k.split('.', 1)[1]}={tcfg.get(k)}" for k in varying]
+            source_parts = [f"{k}={scfg[k]}" for k in source_varying]
             for r in rows:
                 name = str(r["preset"])
-                label = name + suffix if is_semantic(name) else name
+                parts = (transfer_parts if is_semantic(name) else []) + (source_parts if variant(name).transfer else [])
+                label = name + (" [" + ", ".join(parts) + "]" if parts else "")
                 seed = (root, int(r["seed"]))
                 if (label, seed) in seen and seen[(label, seed)] != run_dir:
                     raise ConfigError(f"runs: {label!r} seed {seed[1]} of seed root {root} is in both "
@@ -153,8 +163,8 @@ def build(run_dirs: Sequence[Path], metric: str | None = None, fraction: float |
     semantic = str(report.get("semantic_preset", "") if semantic is None else semantic)
     semantic = "" if semantic == "best" else semantic
     if semantic:
-        try:
-            ReportConfig(semantic_preset=semantic)
+        try:  # a merged name carries its differing settings after the variant: "<variant> [k=v, ...]"
+            ReportConfig(semantic_preset=semantic.split(" [", 1)[0])
         except ValueError as e:
             raise ConfigError(f"semantic={semantic!r}: {e}") from None
     for run_dir, _, rows in runs:

@@ -13,13 +13,13 @@ STEPS = [100, 200, 300, 400, 500]
 PPO = {"num_envs": 4, "unroll_length": 25, "num_iterations": 5}
 
 
-def make_run(path, curves, seed=0, knee="axis", ppo=PPO, source_checkpoint="", report=None):
+def make_run(path, curves, seed=0, knee="axis", ppo=PPO, source_checkpoint="", report=None, source=None):
     """A finished run folder: config.yaml and metrics.csv with ``curves``
     ({(preset, seed index): reward per iteration}) as the target rows, go2 -> anymal_b."""
     path.mkdir(parents=True)
     seeds = 1 + max(k for _, k in curves)
     cfg = {"name": path.parent.name, "seed": seed, "seeds": seeds, "source_checkpoint": source_checkpoint,
-           "source": {"robot": "go2"}, "target": {"robot": "anymal_b", "ppo": dict(ppo), "env": {"kp": 80.0}},
+           "source": {"robot": "go2", **(source or {})}, "target": {"robot": "anymal_b", "ppo": dict(ppo), "env": {"kp": 80.0}},
            "transfer": {"mode": "paper", "knee": knee, "noise_std": 0.5},
            "report": {"threshold_metric": "episode_reward", "threshold_fraction": 0.8, "final_window": 2,
                       **(report or {})}}
@@ -68,6 +68,36 @@ class TestMergedRuns:
         (best,) = table4.build([run], semantic="best")["table"]
         assert best["semantic_preset"] == "L2@semantic_actor" and best["semantic_steps_saved_mean"] == pytest.approx(0.75)
         assert "chosen after the runs" in table4.build([run], semantic="best")["markdown"]
+
+    def test_variants_from_two_sources_carry_the_source_settings_that_differ(self, tmp_path):
+        """One target stage, two sources (one trained twice as long): the same variant and seed
+        in both runs is two variants, told apart by the source settings; scratch is one."""
+        short, long = ({"ppo": {"num_iterations": n, "num_envs": 512}} for n in (700, 1400))
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH, ("L2@semantic_output", 0): [0, 0, 0, 0, 3],
+                                            ("L2", 0): [0, 0, 0, 3, 3]}, source=short,
+                     report={"semantic_preset": "L2@semantic_output"})
+        b = make_run(tmp_path / "b" / "1", {("L2@semantic_output", 0): [0, 3, 3, 3, 3]}, source=long)
+        (variants,) = table4.build([a, b], semantic="best")["variants"]
+        by = {v["preset"]: v for v in variants}
+        assert set(by) == {"scratch", "L2 [source.ppo.num_iterations=700]",
+                           "L2@semantic_output [source.ppo.num_iterations=700]",
+                           "L2@semantic_output [source.ppo.num_iterations=1400]"}
+        # against scratch's 400 steps on seed 0: 500 (saved -0.25) and 200 (saved 0.5)
+        assert by["L2@semantic_output [source.ppo.num_iterations=700]"]["steps_per_seed"][0] == 500.0
+        assert by["L2@semantic_output [source.ppo.num_iterations=1400]"]["steps_saved_mean"] == pytest.approx(0.5)
+        # The rule names the bare variant, which now matches two: the refusal names one to give.
+        with pytest.raises(ConfigError, match=r"matches 2 variants.*semantic='L2@semantic_output \[source"):
+            table4.build([a, b])
+        (row,) = table4.build([a, b], semantic="L2@semantic_output [source.ppo.num_iterations=1400]")["table"]
+        assert row["semantic_preset"] == "L2@semantic_output [source.ppo.num_iterations=1400]"
+        assert row["semantic_steps_saved_mean"] == pytest.approx(0.5)
+
+    def test_runs_on_one_source_setting_keep_their_names(self, tmp_path):
+        same = {"ppo": {"num_iterations": 700}}
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH, ("L2", 0): [0, 0, 0, 3, 3]}, source=same)
+        b = make_run(tmp_path / "b" / "1", {("L2@semantic_output", 0): [0, 3, 3, 3, 3]}, seed=1, source=same)
+        (variants,) = table4.build([a, b], semantic="best")["variants"]
+        assert {v["preset"] for v in variants} == {"scratch", "L2", "L2@semantic_output"}
 
     def test_a_semantic_preset_that_is_not_a_semantic_variant_is_refused(self, tmp_path):
         run = make_run(tmp_path / "a" / "1", SCRATCH)

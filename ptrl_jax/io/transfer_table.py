@@ -151,7 +151,8 @@ def robot_row(
         semantic = [p for p in semantic if p == semantic_preset or p.startswith(semantic_preset + " [")]
         if len(semantic) > 1:
             raise ValueError(f"{experiment} -> {target}: report.semantic_preset={semantic_preset!r} matches "
-                             f"{len(semantic)} variants {semantic}; name one (runs with different transfer settings)")
+                             f"{len(semantic)} variants {semantic}; name one with its settings, semantic='{semantic[0]}' "
+                             f"(runs with different transfer or source settings)")
         choice = NAMED_BEFORE
         if not semantic:
             out.update({"semantic_choice": choice, "semantic_missing": semantic_preset})
