@@ -219,8 +219,9 @@ class ReportConfig:
     zero_shot_check: bool = True
     """Run the robot family's walking check on each transferred initialisation (and scratch's)
     before any fine-tuning, seed 0, in MuJoCo C (a few seconds per check), for report.md's
-    zero-shot table, and on the source policy, for the report's source line (a source that fails
-    its own check carries no gait). The first rollout's reward is reported either way."""
+    zero-shot table, and on the source policy (its written ``source.npz``; none with
+    ``checkpoint=false``), for the report's source line: a source that fails its own check
+    carries no gait. The first rollout's reward is reported either way."""
     zero_shot_seconds: float = 20.0
     """Length of each zero-shot check rollout, s (the walking check's own 20 s by default)."""
     semantic_preset: str = ""

@@ -15,11 +15,12 @@ the same keys whatever variants it holds (``ptrl_jax.core.program``). Runs are g
   keeps the old behaviour);
 - seeds are labelled by (seed root, index), so seed 0 of ``seed=1`` is a seed of its own;
 - where the runs' transfer settings (``transfer.*``) differ, each semantic variant's name gets
-  the settings that differ (``L2@semantic_actor [knee=axis]``); where the settings their configs
-  give the source (``source.*``) differ, every transferring variant's name gets those
-  (``L2@semantic_output [source.ppo.num_iterations=1400]``: one target stage, two sources; a
-  loaded source is read as trained the way its run's config says); the same variant and seed in
-  two runs is refused, naming both;
+  the settings that differ (``L2@semantic_actor [knee=axis]``); a transferring variant (the
+  paper's included) that ran from sources trained with different settings (``source.*``) gets
+  those too (``L2@semantic_output [source.ppo.num_iterations=1400]``: one target stage, two
+  sources). A source loaded from another run's ``source.npz`` has that run's settings where its
+  folder is still there, else the loading run's config's. The same variant and seed in two runs
+  is refused, naming both;
 - the threshold is ``fraction`` x the mean over every scratch seed of the last ``window``
   iterations of ``metric`` (report.md's rule).
 
@@ -32,7 +33,7 @@ writes table4.md, table4.csv and variants.csv there (a folder that holds them is
 ``semantic`` (the semantic column's variant, named before the runs: default the first run's
 ``report.semantic_preset``; ``semantic=best`` takes the best semantic variant, chosen after the
 runs; a merged name with its settings, ``semantic="L2@semantic_output [source.ppo.num_iterations=1400]"``,
-picks one of several), ``out``, ``overwrite``.
+picks one of several; ``transfer_preset`` likewise), ``out``, ``overwrite``.
 """
 
 from __future__ import annotations
@@ -82,6 +83,25 @@ def _source_of(run_dir: Path, cfg: Mapping[str, Any]) -> str:
     return f"loaded from {ckpt}" if ckpt else f"trained in {run_dir}"
 
 
+def transfers(name: str) -> bool:
+    """Whether the variant ``name`` starts from the source (every variant but scratch)."""
+    return variant(name).transfer
+
+
+def source_settings(cfg: Mapping[str, Any], _depth: int = 0) -> dict[str, Any]:
+    """The settings a run's source was trained with, flat (``source.ppo.num_iterations``, ...):
+    its config's ``source`` section, or, where it loaded the ``source.npz`` of another run folder
+    that is still there, that run's (followed through its own loads)."""
+    ckpt = str(cfg.get("source_checkpoint") or "")
+    origin = Path(ckpt).parent / "config.yaml"
+    if ckpt and Path(ckpt).name == "source.npz" and origin.is_file() and _depth < 8:
+        with open(origin) as f:
+            first = yaml.safe_load(f) or {}
+        if first.get("source", {}).get("robot") == cfg.get("source", {}).get("robot"):
+            return source_settings(first, _depth + 1)
+    return flatten(cfg.get("source", {}), "source.")
+
+
 def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[str, Any]]]]
                ) -> dict[tuple[str, str], dict[str, Any]]:
     """{(source robot, target robot): {"rows": merged target rows, "seeds": [(run, root, index)],
@@ -111,27 +131,39 @@ def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[st
                         + "), so their steps to a threshold are not comparable")
             # A key an older run's config lacks came later, with a default that keeps the old behaviour.
             g["transfer"].append({**TRANSFER_DEFAULTS, **flatten(cfg.get("transfer", {}), "transfer.")})
-            g.setdefault("source", []).append(flatten(cfg.get("source", {}), "source."))
+            g.setdefault("source", []).append(source_settings(cfg))
             g["rows"].append((run_dir, cfg, [r for r in rows if r["stage"] == "target" and str(r["robot"]) == robot]))
     out = {}
     for key, g in groups.items():
         # The transfer settings that differ between the runs name the semantic variants.
         keys = sorted({k for t in g["transfer"] for k in t})
         varying = [k for k in keys if len({repr(t.get(k)) for t in g["transfer"]}) > 1]
-        # Source settings are compared where every run's config gives them (an older run may lack a key).
-        shared = set.intersection(*(set(s) for s in g["source"]))
-        source_varying = [k for k in sorted(shared) if len({repr(s[k]) for s in g["source"]}) > 1]
+        # Source settings are compared between the runs that transfer from a source, where each
+        # config gives them (an older run may lack a key); a variant is labelled with them only
+        # where it ran from more than one source setting.
+        sources = [s for (_, cfg, rows), s in zip(g["rows"], g["source"])
+                   if not cfg.get("init_checkpoint") and any(transfers(str(r["preset"])) for r in rows)]
+        shared = set.intersection(*(set(s) for s in sources)) if sources else set()
+        source_varying = [k for k in sorted(shared) if len({repr(s[k]) for s in sources}) > 1]
+        transfer_label = {}  # (run index, variant) -> name with the differing transfer settings
+        from_sources: dict[str, set] = {}  # that name -> the source settings it ran from
+        for i, ((_, cfg, rows), tcfg, scfg) in enumerate(zip(g["rows"], g["transfer"], g["source"])):
+            suffix = ", ".join(f"{k.split('.', 1)[1]}={tcfg.get(k)}" for k in varying)
+            for name in dict.fromkeys(str(r["preset"]) for r in rows):
+                label = f"{name} [{suffix}]" if suffix and is_semantic(name) else name
+                transfer_label[(i, name)] = label
+                if transfers(name) and not cfg.get("init_checkpoint"):
+                    from_sources.setdefault(label, set()).add(tuple(repr(scfg.get(k)) for k in source_varying))
         seen: dict[tuple[str, tuple[int, int]], Path] = {}
         seed_ids: dict[tuple[int, int], int] = {}
         merged = []
-        for (run_dir, cfg, rows), tcfg, scfg in zip(g["rows"], g["transfer"], g["source"]):
+        for i, ((run_dir, cfg, rows), scfg) in enumerate(zip(g["rows"], g["source"])):
             root = int(cfg.get("seed", 0))
-            transfer_parts = [f"{k.split('.', 1)[1]}={tcfg.get(k)}" for k in varying]
-            source_parts = [f"{k}={scfg[k]}" for k in source_varying]
+            source_parts = ", ".join(f"{k}={scfg.get(k)}" for k in source_varying)
             for r in rows:
-                name = str(r["preset"])
-                parts = (transfer_parts if is_semantic(name) else []) + (source_parts if variant(name).transfer else [])
-                label = name + (" [" + ", ".join(parts) + "]" if parts else "")
+                label = transfer_label[(i, str(r["preset"]))]
+                if len(from_sources.get(label, ())) > 1:
+                    label = f"{label[:-1]}, {source_parts}]" if label.endswith("]") else f"{label} [{source_parts}]"
                 seed = (root, int(r["seed"]))
                 if (label, seed) in seen and seen[(label, seed)] != run_dir:
                     raise ConfigError(f"runs: {label!r} seed {seed[1]} of seed root {root} is in both "

@@ -79,8 +79,8 @@ class TestMergedRuns:
         b = make_run(tmp_path / "b" / "1", {("L2@semantic_output", 0): [0, 3, 3, 3, 3]}, source=long)
         (variants,) = table4.build([a, b], semantic="best")["variants"]
         by = {v["preset"]: v for v in variants}
-        assert set(by) == {"scratch", "L2 [source.ppo.num_iterations=700]",
-                           "L2@semantic_output [source.ppo.num_iterations=700]",
+        # L2 ran from one source only, so it keeps its name, and the paper's column finds it.
+        assert set(by) == {"scratch", "L2", "L2@semantic_output [source.ppo.num_iterations=700]",
                            "L2@semantic_output [source.ppo.num_iterations=1400]"}
         # against scratch's 400 steps on seed 0: 500 (saved -0.25) and 200 (saved 0.5)
         assert by["L2@semantic_output [source.ppo.num_iterations=700]"]["steps_per_seed"][0] == 500.0
@@ -91,6 +91,26 @@ class TestMergedRuns:
         (row,) = table4.build([a, b], semantic="L2@semantic_output [source.ppo.num_iterations=1400]")["table"]
         assert row["semantic_preset"] == "L2@semantic_output [source.ppo.num_iterations=1400]"
         assert row["semantic_steps_saved_mean"] == pytest.approx(0.5)
+        assert row["transfer_ran"] and row["steps_saved_mean"] == pytest.approx(0.0)  # L2: 400 against 400
+
+    def test_a_loaded_source_has_the_settings_of_the_run_that_trained_it(self, tmp_path):
+        long = {"ppo": {"num_iterations": 1400}}
+        trained = make_run(tmp_path / "a" / "1", {**SCRATCH, ("L2@semantic_output", 0): [0, 3, 3, 3, 3]}, source=long)
+        (trained / "source.npz").write_bytes(b"")
+        # the loading run's config names the preset's 700 iterations, but its source is the 1400 one
+        loaded = make_run(tmp_path / "b" / "1", {("L2", 0): [0, 0, 0, 3, 3]}, source={"ppo": {"num_iterations": 700}},
+                          source_checkpoint=str(trained / "source.npz"))
+        other = make_run(tmp_path / "c" / "1", {("L2@semantic_output", 0): [0, 0, 0, 0, 3]},
+                         source={"ppo": {"num_iterations": 700}})
+        (variants,) = table4.build([trained, loaded, other], semantic="best")["variants"]
+        assert {v["preset"] for v in variants} == {
+            "scratch", "L2", "L2@semantic_output [source.ppo.num_iterations=1400]",
+            "L2@semantic_output [source.ppo.num_iterations=700]"}
+        # and a run that trains no source has no source to tell apart
+        scratch_only = make_run(tmp_path / "d" / "1", {("scratch", 0): [0, 1, 2, 3, 4]}, seed=2,
+                                source={"ppo": {"num_iterations": 350}})
+        (variants,) = table4.build([loaded, scratch_only], semantic="best")["variants"]
+        assert {v["preset"] for v in variants} == {"scratch", "L2"}
 
     def test_runs_on_one_source_setting_keep_their_names(self, tmp_path):
         same = {"ppo": {"num_iterations": 700}}

@@ -82,9 +82,15 @@ def save_outputs(
         source_note = (f"Source {cfg.source.robot}: {cfg.source.ppo.num_iterations} iterations x "
                        f"{cfg.source.ppo.env_steps_per_iteration} env steps, final mean episode reward {src_final:.3f}")
     source_checks = None
-    if source_checker is not None and transfers and cfg.checkpoint and not cfg.init_checkpoint:
-        source_checks = source_checker(run_dir / "source.npz")
-        source_note += "; " + format_source_checks(source_checks, cfg.report.zero_shot_seconds)
+    if source_checker is not None and transfers and not cfg.init_checkpoint:
+        if not cfg.checkpoint:
+            source_note += "; its walking check not run (checkpoint=false: no source.npz to check)"
+        else:
+            try:
+                source_checks = source_checker(run_dir / "source.npz")
+                source_note += "; " + format_source_checks(source_checks, cfg.report.zero_shot_seconds)
+            except Exception as e:  # the report and the checkpoints matter more than this line
+                source_note += f"; its walking check failed to run ({type(e).__name__}: {e})"
     common = [
         source_note,
         f"Final reward = mean over the last {cfg.report.final_window} iterations; AUC = reward "

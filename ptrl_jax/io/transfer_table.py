@@ -105,6 +105,20 @@ def _compare(scratch: Mapping[str, np.ndarray], other: Mapping[str, np.ndarray])
     return out
 
 
+def _one_named(curves: Mapping[str, Any], name: str, key: str, experiment: str, target: str) -> str:
+    """The variant of ``curves`` that ``name`` names: itself, or the one merged name that carries
+    settings after it ("L2@semantic_actor [knee=flexion]", from runs with different transfer or
+    source settings); ``name`` unchanged where none does. Several: refused, naming one to give."""
+    if name in curves:
+        return name
+    found = [p for p in curves if p.startswith(name + " [")]
+    if len(found) > 1:
+        raise ValueError(f"{experiment} -> {target}: {key}={name!r} matches {len(found)} variants {found}; "
+                         f"name one with its settings, {key}='{found[0]}' (runs with different transfer or "
+                         f"source settings)")
+    return found[0] if found else name
+
+
 def robot_row(
     experiment: str, source: str, target: str, rows: Sequence[Mapping[str, Any]], transfer_preset: str,
     threshold_fraction: float, final_window: int, metric: str = "episode_reward", require_transfer: bool = True,
@@ -117,6 +131,7 @@ def robot_row(
     (``transfer_ran`` False, shown as 'not run') instead of refusing the row. ``semantic_preset``:
     the semantic column's variant, named before the runs; empty: the best semantic variant."""
     curves = curves_by_preset(rows, metric)
+    transfer_preset = _one_named(curves, transfer_preset, "transfer_preset", experiment, target)
     needed = ("scratch", transfer_preset) if require_transfer else ("scratch",)
     missing = [p for p in needed if p not in curves]
     if missing:
@@ -146,13 +161,8 @@ def robot_row(
     semantic = [p for p in curves if is_semantic(p)]
     choice = f"best of {len(semantic)} semantic variant(s), chosen after the runs"
     if semantic_preset:
-        # A merged run's variants may carry their differing transfer settings ("L2@semantic_actor
-        # [knee=flexion]"); the rule names the bare variant, so any of its settings qualify.
-        semantic = [p for p in semantic if p == semantic_preset or p.startswith(semantic_preset + " [")]
-        if len(semantic) > 1:
-            raise ValueError(f"{experiment} -> {target}: report.semantic_preset={semantic_preset!r} matches "
-                             f"{len(semantic)} variants {semantic}; name one with its settings, semantic='{semantic[0]}' "
-                             f"(runs with different transfer or source settings)")
+        semantic_preset = _one_named(curves, semantic_preset, "semantic", experiment, target)
+        semantic = [semantic_preset] if semantic_preset in curves else []
         choice = NAMED_BEFORE
         if not semantic:
             out.update({"semantic_choice": choice, "semantic_missing": semantic_preset})
