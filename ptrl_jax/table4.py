@@ -113,7 +113,7 @@ def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[st
         if not targets:
             raise ConfigError(f"runs: {run_dir} has no target rows in its metrics.csv")
         for robot in targets:
-            g = groups.setdefault((source, robot), {"rows": [], "settings": None, "transfer": []})
+            g = groups.setdefault((source, robot), {"rows": [], "settings": None, "transfer": [], "source": []})
             settings = _target_settings(cfg, robot)
             if g["settings"] is None:
                 g["settings"], g["settings_run"] = settings, run_dir
@@ -131,7 +131,7 @@ def merge_runs(runs: Sequence[tuple[Path, Mapping[str, Any], Sequence[Mapping[st
                         + "), so their steps to a threshold are not comparable")
             # A key an older run's config lacks came later, with a default that keeps the old behaviour.
             g["transfer"].append({**TRANSFER_DEFAULTS, **flatten(cfg.get("transfer", {}), "transfer.")})
-            g.setdefault("source", []).append(source_settings(cfg))
+            g["source"].append(source_settings(cfg))
             g["rows"].append((run_dir, cfg, [r for r in rows if r["stage"] == "target" and str(r["robot"]) == robot]))
     out = {}
     for key, g in groups.items():

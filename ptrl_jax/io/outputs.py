@@ -81,14 +81,13 @@ def save_outputs(
         src_final = np.mean([r for _, r in source_curve][-cfg.report.final_window:])
         source_note = (f"Source {cfg.source.robot}: {cfg.source.ppo.num_iterations} iterations x "
                        f"{cfg.source.ppo.env_steps_per_iteration} env steps, final mean episode reward {src_final:.3f}")
-    source_checks = None
     if source_checker is not None and transfers and not cfg.init_checkpoint:
         if not cfg.checkpoint:
             source_note += "; its walking check not run (checkpoint=false: no source.npz to check)"
         else:
             try:
-                source_checks = source_checker(run_dir / "source.npz")
-                source_note += "; " + format_source_checks(source_checks, cfg.report.zero_shot_seconds)
+                source_note += "; " + format_source_checks(source_checker(run_dir / "source.npz"),
+                                                           cfg.report.zero_shot_seconds)
             except Exception as e:  # the report and the checkpoints matter more than this line
                 source_note += f"; its walking check failed to run ({type(e).__name__}: {e})"
     common = [
@@ -129,7 +128,7 @@ def save_outputs(
     artifacts.atomic_write_text(run_dir / "report.md", "\n".join(sections))
     table, threshold = tables[cfg.target.robot]
     return {"rows": rows, "summary": table, "threshold": threshold,
-            "summaries": {robot: t for robot, (t, _) in tables.items()}, "source_checks": source_checks}
+            "summaries": {robot: t for robot, (t, _) in tables.items()}}
 
 
 def zero_shot_rows(cfg: ExperimentConfig, robot: str, rows, initial: Any,
