@@ -28,7 +28,9 @@ It prints the Table IV rows (``ptrl_jax.io.transfer_table``; the paper's transfe
 run' unless ``transfer_preset`` ran) and a table of every variant. Wall times come from
 different programs, sharing the cores with whatever else ran, so compare env steps. ``out=DIR``
 writes table4.md, table4.csv and variants.csv there (a folder that holds them is refused unless
-``overwrite=true``). Keys: ``runs``, ``metric`` (default: the first run's
+``overwrite=true``). Where a pair holds freeze-ratio variants (``rho<r>``, of any transfer mode),
+the tables gain that mode's curve: each of its variants at its frozen share of L1 and L2 (whole
+layers included: 'L2' at 0.20), and ``out=`` draws it, freeze_ratio_<source>_<target>_<mode>.png. Keys: ``runs``, ``metric`` (default: the first run's
 ``report.threshold_metric``), ``fraction`` and ``window`` (likewise), ``transfer_preset`` (L2),
 ``semantic`` (the semantic column's variant, named before the runs: default the first run's
 ``report.semantic_preset``; ``semantic=best`` takes the best semantic variant, chosen after the
@@ -46,7 +48,7 @@ import yaml
 
 from ptrl_jax.config import ReportConfig, TransferConfig
 from ptrl_jax.core.freeze import is_semantic, variant
-from ptrl_jax.io import artifacts, transfer_table
+from ptrl_jax.io import artifacts, figures, transfer_table
 from ptrl_jax.io.overrides import ConfigError, coerce, flatten, parse_known_cli, to_dict
 
 KEYS = ("runs", "metric", "fraction", "window", "transfer_preset", "semantic", "out", "overwrite")
@@ -208,6 +210,8 @@ def build(run_dirs: Sequence[Path], metric: str | None = None, fraction: float |
         (f"Semantic column: {semantic}, named before the runs (report.semantic_preset, or semantic=)" if semantic else
          "Semantic column: each row's best semantic variant, chosen after the runs on the seeds it reports")]
     experiment = "+".join(sorted({d.parent.name for d, _, _ in runs}))
+    hidden = tuple(runs[0][1].get("network", {}).get("actor_hidden", (512, 256, 128)))
+    ratios = []  # per pair: (scratch's variant row, its freeze-ratio curves, their figure names)
     for (source, target), g in merge_runs(runs).items():
         try:
             table.append(transfer_table.robot_row(experiment, source, target, g["rows"], transfer_preset, fraction, window, metric,
@@ -215,24 +219,45 @@ def build(run_dirs: Sequence[Path], metric: str | None = None, fraction: float |
             variants.append(transfer_table.variant_rows(source, target, g["rows"], fraction, window, metric))
         except ValueError as e:
             raise ConfigError(f"runs: {e}") from None
+        curves = transfer_table.ratio_curves(variants[-1], hidden)
+        if curves:
+            ratios.append((variants[-1][0], curves, [ratio_figure_name(source, target, c, k) for k, c in enumerate(curves)]))
         notes += [f"{source} -> {target}: {n}" for n in g["notes"]]
-    markdown = transfer_table.format_markdown(table, notes) + "".join("\n" + transfer_table.format_variants(v)
-                                                                     for v in variants)
-    return {"table": table, "variants": variants, "notes": notes, "markdown": markdown}
+    head = transfer_table.format_markdown(table, notes) + "".join("\n" + transfer_table.format_variants(v)
+                                                                 for v in variants)
+
+    def with_ratios(figures: bool) -> str:
+        return head + "".join("\n" + transfer_table.format_ratio_curves(c, scratch, png if figures else ())
+                              for scratch, c, png in ratios)
+
+    return {"table": table, "variants": variants, "notes": notes, "ratios": ratios, "markdown": with_ratios(False),
+            "markdown_with_figures": with_ratios(True)}
+
+
+def ratio_figure_name(source: str, target: str, curve: Mapping[str, Any], index: int) -> str:
+    """The file ``out=`` writes a freeze-ratio curve to: freeze_ratio_<source>_<target>_<mode>.png
+    (with ``_<index>`` where a merged settings label tells two curves of one mode apart)."""
+    return f"freeze_ratio_{source}_{target}_{curve['mode']}" + (f"_{index}" if curve["label"] else "") + ".png"
 
 
 def write(out: Path, result: Mapping[str, Any], overwrite: bool = False) -> None:
     out = Path(out)
-    present = [n for n in OUTPUTS if (out / n).exists()]
+    pngs = [name for _, _, png in result.get("ratios", ()) for name in png]
+    present = [n for n in (*OUTPUTS, *pngs) if (out / n).exists()]
     if present and not overwrite:
         raise ConfigError(f"out={out} already holds {', '.join(present)}; pass overwrite=true to replace them")
     out.mkdir(parents=True, exist_ok=True)
+    for scratch, curves, png in result.get("ratios", ()):
+        for curve, name in zip(curves, png):
+            title = (f"{scratch['source']} -> {scratch['target']}, {curve['mode']} transfer"
+                     + (f" [{curve['label']}]" if curve["label"] else ""))
+            figures.plot_ratio_curve(out / name, curve, scratch, title)
     rows = [{k: r.get(k, "") for k in transfer_table.FIELDS} for r in result["table"]]
     artifacts.write_metrics_csv(out / "table4.csv", rows + [transfer_table.average_row(result["table"])])
     flat = [{k: (" ".join(f"{x:g}" for x in r[k]) if k == "steps_per_seed" else r[k])
              for k in transfer_table.VARIANT_FIELDS} for v in result["variants"] for r in v]
     artifacts.write_metrics_csv(out / "variants.csv", flat)
-    artifacts.atomic_write_text(out / "table4.md", result["markdown"])
+    artifacts.atomic_write_text(out / "table4.md", result.get("markdown_with_figures", result["markdown"]))
 
 
 def _run_list(value: str) -> list[Path]:

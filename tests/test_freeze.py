@@ -5,7 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ptrl_jax.config import NetworkConfig
-from ptrl_jax.core.freeze import FREEZE_PRESETS, count_frozen, frozen_fraction, masked, preset_mask, variant
+from ptrl_jax.core.freeze import (FREEZE_PRESETS, count_frozen, frozen_fraction, frozen_share, masked, preset_mask,
+                                  variant)
 from ptrl_jax.core.networks import init_actor_critic
 from ptrl_jax.core.optim import AdamState, apply_updates, chain, clip_by_global_norm, global_norm, scale_by_adam
 
@@ -63,6 +64,20 @@ class TestFreezeRatio:
             assert jax.tree.all(jax.tree.map(lambda a, b: bool((a == b).all()), got, want)), rho
         assert frozen_fraction(preset_mask(p, "rho1")) == 1.0
         assert frozen_fraction(preset_mask(p, "rho0")) == 0.0
+
+    def test_frozen_share_from_sizes_alone(self):
+        """The x axis of merged freeze-ratio curves: L1 and L2 of the paper's sizes hold
+        512*256+256 = 131,328 and 256*128+128 = 32,896 parameters."""
+        assert frozen_share(variant("L2@semantic_output")) == 32896 / (131328 + 32896)  # 0.2003
+        assert frozen_share(variant("L1")) == 131328 / (131328 + 32896)
+        assert frozen_share(variant("rho0.5")) == 0.5  # 128 * 513 + 64 * 257 = half of 164,224
+        assert frozen_share(variant("none")) == 0.0 and frozen_share(variant("scratch")) == 0.0
+        assert frozen_share(variant("rho1@semantic")) == 1.0
+
+    def test_frozen_share_agrees_with_the_mask(self):
+        p = small_params()  # actor hidden (16, 8, 4)
+        for name in ("L1", "L2", "rho0.3", "rho0.25@semantic_actor", "L1+L2"):
+            assert abs(frozen_share(variant(name), (16, 8, 4)) - frozen_fraction(preset_mask(p, name))) < 1e-12, name
 
     def test_ratio_variants_transfer(self):
         assert variant("rho0.5").transfer and variant("rho0.5").ratio == 0.5

@@ -207,3 +207,53 @@ class TestCommandLine:
     def test_unknown_keys_are_refused(self, capsys):
         assert table4.main(["runs=[x]", "thresold=0.5"]) == 2
         assert "unknown argument(s) ['thresold']" in capsys.readouterr().err
+
+
+class TestFreezeRatioFromMergedRuns:
+    """A freeze-ratio sweep run in another program than its scratch and whole-layer variants."""
+
+    def runs(self, tmp_path):
+        a = make_run(tmp_path / "a" / "1", {**SCRATCH, ("L2@semantic_actor", 0): [0, 3, 3, 3, 3],
+                                            ("L2@semantic_actor", 1): [0, 0, 3, 3, 3], ("L2", 0): [3] * 5,
+                                            ("L2", 1): [3] * 5})
+        b = make_run(tmp_path / "b" / "1", {("rho0@semantic_actor", 0): [0, 0, 0, 3, 3],
+                                            ("rho0@semantic_actor", 1): [0, 0, 0, 3, 3],
+                                            ("rho1@semantic_actor", 0): [0, 0, 0, 0, 3],
+                                            ("rho1@semantic_actor", 1): [0, 0, 0, 0, 3]})
+        return a, b
+
+    def test_the_curve_holds_the_mode_s_variants_at_their_frozen_share(self, tmp_path):
+        result = table4.build(list(self.runs(tmp_path)))
+        ((scratch, (curve,), png),) = result["ratios"]  # the paper's L2 alone makes no curve
+        assert scratch["preset"] == "scratch" and curve["mode"] == "semantic_actor" and curve["label"] == ""
+        assert png == ["freeze_ratio_go2_anymal_b_semantic_actor.png"]
+        points = [(p["preset"], round(p["share"], 4), p["ratio"], p["steps_per_seed"]) for p in curve["points"]]
+        # threshold 3.0, scratch at 400 on both seeds
+        assert points == [("rho0@semantic_actor", 0.0, True, [400.0, 400.0]),
+                          ("L2@semantic_actor", 0.2003, False, [200.0, 300.0]),
+                          ("rho1@semantic_actor", 1.0, True, [500.0, 500.0])]
+        assert [p["steps_saved_mean"] for p in curve["points"]] == pytest.approx([0.0, 0.375, -0.25])
+        text = result["markdown"]
+        assert "## go2 -> anymal_b: freeze ratio, semantic_actor transfer" in text
+        assert "| L2@semantic_actor | 0.20 | 0.00 ± 0.00 M | +37.5 % ± 12.5 (2/2) | 3.00 ± 0.00 |" in text
+        assert "| rho1@semantic_actor | 1.00 | 0.00 ± 0.00 M | -25.0 % ± 0.0 (2/2) | 1.50 ± 0.00 |" in text
+        assert "![freeze ratio]" not in text  # figures only where out= draws them
+
+    def test_out_draws_the_curve_and_keeps_an_existing_one(self, tmp_path):
+        result = table4.build(list(self.runs(tmp_path)))
+        out = tmp_path / "out"
+        table4.write(out, result)
+        png = out / "freeze_ratio_go2_anymal_b_semantic_actor.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert "![freeze ratio](freeze_ratio_go2_anymal_b_semantic_actor.png)" in (out / "table4.md").read_text()
+        for name in table4.OUTPUTS:
+            (out / name).unlink()
+        before = png.read_bytes()
+        with pytest.raises(ConfigError, match="already holds freeze_ratio_go2_anymal_b_semantic_actor.png; pass overwrite"):
+            table4.write(out, result)
+        assert png.read_bytes() == before and not (out / "table4.md").exists()
+
+    def test_no_ratio_variant_no_curve(self, tmp_path):
+        a, _ = self.runs(tmp_path)
+        result = table4.build([a])
+        assert result["ratios"] == [] and "freeze ratio" not in result["markdown"]

@@ -102,6 +102,18 @@ def ratio_preset(rho: float) -> FreezePreset:
     return FreezePreset(ratio_name(rho), transfer=True, frozen=("L1", "L2"), ratio=rho)
 
 
+def frozen_share(preset: FreezePreset, actor_hidden: tuple[int, ...] = (512, 256, 128)) -> float:
+    """The frozen fraction of L1's and L2's parameters (weights and biases) under ``preset``,
+    with the actor's hidden sizes ``actor_hidden``: the x axis on which whole-layer presets and
+    freeze ratios share one curve. With (512, 256, 128): 'L2' is 0.2003, 'L1' 0.7997, ``rho0.5``
+    0.5; 'none' and 'scratch' are 0."""
+    h0, h1, h2 = actor_hidden
+    units = {"L1": (h1, h0 + 1), "L2": (h2, h1 + 1)}  # (output units, parameters per unit)
+    total = sum(n * per for n, per in units.values())
+    frozen = sum(math.ceil(preset.ratio * units[layer][0]) * units[layer][1] for layer in preset.frozen)
+    return frozen / total
+
+
 def is_semantic(name: str) -> bool:
     """Whether variant ``name`` transfers semantically (``<preset>@semantic``, ``@semantic_actor``,
     ``@semantic_input`` or ``@semantic_output``)."""

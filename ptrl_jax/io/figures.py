@@ -163,3 +163,36 @@ def plot_command_grid(path: Path, grid: Any, summary: Mapping[str, Any], pushed:
         fig.colorbar(im, ax=list(axes[r]), shrink=0.8, label=f"goal {goal:g}")
     fig.suptitle(f"{title}: tracking error per command (x: fell)", fontsize=10)
     fig.savefig(path, dpi=110)
+
+
+def plot_ratio_curve(path: Path, curve: Mapping[str, Any], scratch: Mapping[str, Any], title: str) -> None:
+    """One freeze-ratio curve of ``transfer_table.ratio_curves`` (merged runs): env steps to the
+    threshold and final reward against the frozen share of L1 and L2, the ``rho<r>`` variants as
+    a line, whole-layer presets ('L2', 'L1') as labelled squares, scratch as a dashed line."""
+    from matplotlib.figure import Figure  # no pyplot: leaves a notebook's backend alone
+
+    fig = Figure(figsize=(10, 3.8))
+    axes = fig.subplots(1, 2)
+    for ax, (key, label, scale) in zip(axes, [("steps", "env steps to threshold (M)", 1e-6),
+                                              ("final_reward", "final episode reward", 1.0)]):
+        for is_ratio, style in ((True, dict(marker="o", ls="-")), (False, dict(marker="s", ls="none"))):
+            points = [p for p in curve["points"] if p["ratio"] == is_ratio]
+            if not points:
+                continue
+            x = np.array([p["share"] for p in points])
+            y = np.array([p[f"{key}_mean"] for p in points], float) * scale
+            err = np.array([p[f"{key}_std"] for p in points], float) * scale
+            ax.errorbar(x, y, yerr=err, capsize=3, label="freeze ratio rho" if is_ratio else "whole layers", **style)
+            if not is_ratio:
+                for xi, yi, p in zip(x, y, points):
+                    ax.annotate(p["preset"].split("@")[0], (xi, yi), textcoords="offset points", xytext=(5, 5))
+        if np.isfinite(scratch[f"{key}_mean"]):
+            ax.axhline(scratch[f"{key}_mean"] * scale, color="k", ls="--", lw=1, label="scratch")
+        ax.set_xlabel("frozen share of L1 and L2")
+        ax.set_ylabel(label)
+        ax.set_xlim(-0.05, 1.05)
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)

@@ -340,3 +340,53 @@ def format_variants(rows: Sequence[Mapping[str, Any]]) -> str:
         lines.append(f"| {r['preset']} | {r['seeds']} | {', '.join(m(x) for x in r['steps_per_seed'])} | {spread} | "
                      f"{saved} | {r['final_reward_mean']:.2f} ± {r['final_reward_std']:.2f} |")
     return "\n".join(lines) + "\n"
+
+
+def ratio_curves(variants: Sequence[Mapping[str, Any]], actor_hidden: tuple[int, ...] = (512, 256, 128)
+                 ) -> list[dict[str, Any]]:
+    """The freeze-ratio curves in one robot pair's ``variant_rows``: per transfer mode (and merged
+    settings label, ``"... [k=v]"``) that holds a ``rho<r>`` variant, that mode's variants with
+    their frozen share of L1 and L2 (``freeze.frozen_share``: ``rho<r>`` at r, 'L2' at 0.20, 'L1'
+    at 0.80 for the paper's sizes, 'none' at 0 and 'L1+L2' at 1), sorted by it:
+    ``[{"mode", "label", "points": [{**variant row, "share", "ratio": bool}]}]``, where ``ratio``
+    is False for a whole-layer preset. Scratch stays out (it is every curve's baseline)."""
+    from ptrl_jax.core.freeze import MODE_SEPARATOR, RATIO_PREFIX, frozen_share, variant
+
+    series: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in variants:
+        name, _, label = str(r["preset"]).partition(" [")
+        base, _, mode = name.partition(MODE_SEPARATOR)
+        preset = variant(name)
+        if not preset.transfer:
+            continue
+        point = {**r, "share": frozen_share(preset, actor_hidden), "ratio": base.startswith(RATIO_PREFIX)}
+        series.setdefault((mode or "paper", label.rstrip("]")), []).append(point)
+    return [{"mode": mode, "label": label, "points": sorted(points, key=lambda p: (p["share"], not p["ratio"]))}
+            for (mode, label), points in series.items() if any(p["ratio"] for p in points)]
+
+
+def format_ratio_curves(curves: Sequence[Mapping[str, Any]], scratch: Mapping[str, Any], png: Sequence[str] = ()) -> str:
+    """Markdown of ``ratio_curves`` for one robot pair: per curve, each variant's frozen share of
+    L1 and L2, env steps to the threshold and saving against ``scratch`` (its variant row), and
+    final reward; ``png``: the figure file of each curve, linked above its table."""
+    out = []
+    for k, c in enumerate(curves):
+        lines = [f"## {scratch['source']} -> {scratch['target']}: freeze ratio, {c['mode']} transfer"
+                 + (f" [{c['label']}]" if c["label"] else ""), ""]
+        if k < len(png):
+            lines += [f"![freeze ratio]({png[k]})", ""]
+        lines += [f"Frozen share of L1's and L2's parameters; threshold {scratch['threshold']:.4g} ({scratch['threshold_metric']}); "
+                  f"scratch: {_millions(scratch['steps_mean'], scratch['steps_std'])}, final reward "
+                  f"{scratch['final_reward_mean']:.2f}.", "",
+                  "| variant | frozen share | env steps to threshold | saved | final reward |", "|---|---|---|---|---|"]
+        for p in c["points"]:
+            saved = ("not reached" if not np.isfinite(p["steps_saved_mean"]) else
+                     f"{100 * p['steps_saved_mean']:+.1f} % ± {100 * p['steps_saved_std']:.1f} ({p['seeds_both_reached']}/{p['seeds']})")
+            lines.append(f"| {p['preset']} | {p['share']:.2f} | {_millions(p['steps_mean'], p['steps_std'])} | {saved} | "
+                         f"{p['final_reward_mean']:.2f} ± {p['final_reward_std']:.2f} |")
+        out.append("\n".join(lines) + "\n")
+    return "\n".join(out)
+
+
+def _millions(mean: float, std: float) -> str:
+    return f"{mean / 1e6:.2f} ± {std / 1e6:.2f} M" if np.isfinite(mean) else "not reached"
