@@ -30,7 +30,8 @@ different programs, sharing the cores with whatever else ran, so compare env ste
 writes table4.md, table4.csv and variants.csv there (a folder that holds them is refused unless
 ``overwrite=true``). Where a pair holds freeze-ratio variants (``rho<r>``, of any transfer mode),
 the tables gain that mode's curve: each of its variants at its frozen share of L1 and L2 (whole
-layers included: 'L2' at 0.20), and ``out=`` draws it, freeze_ratio_<source>_<target>_<mode>.png. Keys: ``runs``, ``metric`` (default: the first run's
+layers included: 'L2' at 0.20), and ``out=`` draws it, freeze_ratio_<source>_<target>_<mode>.png.
+Keys: ``runs``, ``metric`` (default: the first run's
 ``report.threshold_metric``), ``fraction`` and ``window`` (likewise), ``transfer_preset`` (L2),
 ``semantic`` (the semantic column's variant, named before the runs: default the first run's
 ``report.semantic_preset``; ``semantic=best`` takes the best semantic variant, chosen after the
@@ -242,12 +243,12 @@ def ratio_figure_name(source: str, target: str, curve: Mapping[str, Any], index:
 
 def write(out: Path, result: Mapping[str, Any], overwrite: bool = False) -> None:
     out = Path(out)
-    pngs = [name for _, _, png in result.get("ratios", ()) for name in png]
+    pngs = [name for _, _, png in result["ratios"] for name in png]
     present = [n for n in (*OUTPUTS, *pngs) if (out / n).exists()]
     if present and not overwrite:
         raise ConfigError(f"out={out} already holds {', '.join(present)}; pass overwrite=true to replace them")
     out.mkdir(parents=True, exist_ok=True)
-    for scratch, curves, png in result.get("ratios", ()):
+    for scratch, curves, png in result["ratios"]:
         for curve, name in zip(curves, png):
             title = (f"{scratch['source']} -> {scratch['target']}, {curve['mode']} transfer"
                      + (f" [{curve['label']}]" if curve["label"] else ""))
@@ -257,7 +258,7 @@ def write(out: Path, result: Mapping[str, Any], overwrite: bool = False) -> None
     flat = [{k: (" ".join(f"{x:g}" for x in r[k]) if k == "steps_per_seed" else r[k])
              for k in transfer_table.VARIANT_FIELDS} for v in result["variants"] for r in v]
     artifacts.write_metrics_csv(out / "variants.csv", flat)
-    artifacts.atomic_write_text(out / "table4.md", result.get("markdown_with_figures", result["markdown"]))
+    artifacts.atomic_write_text(out / "table4.md", result["markdown_with_figures"])
 
 
 def _run_list(value: str) -> list[Path]:

@@ -335,9 +335,8 @@ def format_variants(rows: Sequence[Mapping[str, Any]]) -> str:
                  "not reached" if not np.isfinite(r["steps_saved_mean"]) else
                  f"{100 * r['steps_saved_mean']:+.1f} % ± {100 * r['steps_saved_std']:.1f} "
                  f"({r['seeds_both_reached']}/{r['seeds']})")
-        spread = (f"{r['steps_mean'] / 1e6:.2f} ± {r['steps_std'] / 1e6:.2f} M" if np.isfinite(r["steps_mean"])
-                  else "not reached")
-        lines.append(f"| {r['preset']} | {r['seeds']} | {', '.join(m(x) for x in r['steps_per_seed'])} | {spread} | "
+        lines.append(f"| {r['preset']} | {r['seeds']} | {', '.join(m(x) for x in r['steps_per_seed'])} | "
+                     f"{_millions(r['steps_mean'], r['steps_std'])} | "
                      f"{saved} | {r['final_reward_mean']:.2f} ± {r['final_reward_std']:.2f} |")
     return "\n".join(lines) + "\n"
 
