@@ -188,8 +188,10 @@ def summarize_grid(commands: np.ndarray, records: Mapping[str, Any], settle_s: f
     its seeds' such steps; the error per axis, |mean - command|; the RMS of the per-step error
     (the stride's swing); whether any seed fell and the share that fell; the mean time up.
     Summary: the mean error per axis over the cells (cells with no step up count as NaN and
-    are left out of the mean, their falls counted), the number of cells with a fall and the
-    share of all rollouts that fell."""
+    are left out of the mean, their falls counted); ``standing_error``, the mean a robot that
+    stood still would score over the same cells (the mean |command|), and ``tracked``, the share
+    of that error the policy removes (1 - mean error / standing error; NaN on an axis the grid
+    never commands); the number of cells with a fall and the share of all rollouts that fell."""
     commands = np.asarray(commands, np.float64)
     up = np.asarray(records["alive"]).astype(bool)          # [cells, seeds, T]
     fell = np.asarray(records["fell"]).astype(bool)
@@ -215,10 +217,16 @@ def summarize_grid(commands: np.ndarray, records: Mapping[str, Any], settle_s: f
     errors = np.array([c["error"] for c in cells])
     with np.errstate(invalid="ignore"):
         mean_error = np.nanmean(errors, axis=0) if np.isfinite(errors).any() else np.full(3, np.nan)
+        # the same mean for a robot that stands still (velocity 0): the mean |command| over the cells counted
+        standing = np.array([np.abs(commands[np.isfinite(errors[:, a]), a]).mean() if np.isfinite(errors[:, a]).any()
+                             else np.nan for a in range(3)])
+        tracked = np.where(standing > 0, 1.0 - mean_error / np.where(standing > 0, standing, 1.0), np.nan)
     rollouts = fell.shape[0] * fell.shape[1]
     return {
         "cells": cells,
         "mean_error": {axis: float(e) for axis, e in zip(AXES, mean_error)},
+        "standing_error": {axis: float(e) for axis, e in zip(AXES, standing)},
+        "tracked": {axis: float(t) for axis, t in zip(AXES, tracked)},
         "cells_with_fall": int(sum(c["fell"] for c in cells)),
         "fall_rate": float(fell.any(axis=-1).sum() / rollouts),
         "rollouts": int(rollouts),
@@ -239,7 +247,22 @@ def verdict(grid: CommandGrid, summary: Mapping[str, Any], pushed: Mapping[str, 
             reasons.append(f"mean |{axis} error| {err:.3f} > {goal}")
     if pushed is not None and not pushed["fall_rate"] <= grid.max_push_fall_rate:
         reasons.append(f"{pushed['fall_rate']:.1%} of pushed rollouts fell > {grid.max_push_fall_rate:.0%}")
-    return {"passed": not reasons, "why_not": "; ".join(reasons)}
+    return {"passed": not reasons, "why_not": "; ".join(reasons), "caveats": goal_caveats(grid, summary)}
+
+
+def goal_caveats(grid: CommandGrid, summary: Mapping[str, Any]) -> list[str]:
+    """The axes whose goal a robot that ignores that axis would meet on this grid: where the
+    goal is at least the standing error (yaw rates {-0.3, 0, 0.3} give a standing error of
+    exactly 0.2, the yaw goal). Meeting such a goal says nothing of tracking; read ``tracked``."""
+    goals = {"vx": grid.max_vx_error, "vy": grid.max_vy_error, "yaw": grid.max_yaw_error}
+    out = []
+    for axis, goal in goals.items():
+        standing = summary.get("standing_error", {}).get(axis, float("nan"))
+        if standing <= goal:
+            tracked = summary.get("tracked", {}).get(axis, float("nan"))
+            out.append(f"the {axis} goal ({goal:g}) is met by a robot that ignores {axis} on this grid "
+                       f"(standing error {standing:.3f}); this policy removes {tracked:.0%} of it")
+    return out
 
 
 def cell_for(summary: Mapping[str, Any], command: Sequence[float]) -> dict[str, Any] | None:
@@ -273,6 +296,10 @@ def format_markdown(robot: str, sim: str, grid: CommandGrid, summary: Mapping[st
     lines += ["", f"Mean error over the grid: vx {m['vx']:.3f} m/s (goal {grid.max_vx_error}), "
                   f"vy {m['vy']:.3f} m/s (goal {grid.max_vy_error}), yaw {m['yaw']:.3f} rad/s (goal {grid.max_yaw_error}). "
                   f"Cells with a fall: {summary['cells_with_fall']} of {len(summary['cells'])}."]
+    if "standing_error" in summary:
+        st, tr = summary["standing_error"], summary["tracked"]
+        lines.append("Standing still would score " + ", ".join(f"{a} {st[a]:.3f}" for a in AXES)
+                     + "; this policy removes " + ", ".join(f"{a} {tr[a]:.0%}" for a in AXES) + " of that error.")
     if pushed:
         lines.append(f"With pushes (U(-{grid.max_push_vel:g}, {grid.max_push_vel:g}) m/s per axis every "
                      f"{grid.push_interval_s:g} s, {grid.push_seeds} per cell): {pushed['fall_rate']:.1%} of "
@@ -281,6 +308,7 @@ def format_markdown(robot: str, sim: str, grid: CommandGrid, summary: Mapping[st
         lines.append(f"Walking check '{v['check']}' (its cell, vx {v['command'][0]:g}): "
                      + ("passes" if v["passed"] else f"fails ({v['why_not']})") + ".")
     lines += ["", "**passes**" if judged["passed"] else f"**fails**: {judged['why_not']}"]
+    lines += [f"Caveat: {c}." for c in judged.get("caveats", ())]
     return "\n".join(lines) + "\n"
 
 

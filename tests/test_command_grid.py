@@ -103,6 +103,25 @@ class TestBookkeeping:
         assert s["mean_error"]["vx"] == pytest.approx(0.1) and s["cells_with_fall"] == 1
 
 
+    def test_standing_error_is_the_mean_command_and_tracked_the_share_removed(self):
+        # yaw rates -0.3, 0, 0.3: standing still errs 0.2 on average; a robot turning at half the
+        # command removes half of that; vy is never commanded, so its share is undefined
+        commands = np.array([[0.5, 0.0, -0.3], [0.5, 0.0, 0.0], [1.0, 0.0, 0.3]])
+        rec = records([[4], [4], [4]], [[(0.5, 0.0, -0.15)], [(0.5, 0.0, 0.0)], [(0.9, 0.0, 0.15)]],
+                      [[False], [False], [False]])
+        s = command_grid.summarize_grid(commands, rec)
+        assert s["standing_error"]["yaw"] == pytest.approx(0.2) and s["mean_error"]["yaw"] == pytest.approx(0.1)
+        assert s["tracked"]["yaw"] == pytest.approx(0.5)
+        assert s["standing_error"]["vx"] == pytest.approx(2 / 3) and s["mean_error"]["vx"] == pytest.approx(0.1 / 3)
+        assert s["tracked"]["vx"] == pytest.approx(0.95)
+        assert s["standing_error"]["vy"] == 0.0 and np.isnan(s["tracked"]["vy"])
+
+    def test_standing_error_leaves_out_the_cells_the_mean_leaves_out(self):
+        rec = records([[4], [0]], [[(0.4, 0.0, 0.0)], [(0.0, 0.0, 0.0)]], [[False], [True]])
+        s = command_grid.summarize_grid(np.array([[0.5, 0, 0], [1.0, 0, 0]]), rec)
+        assert s["standing_error"]["vx"] == pytest.approx(0.5) and s["tracked"]["vx"] == pytest.approx(0.8)
+
+
 class TestVerdict:
     grid = CommandGrid(vx=(0.5,), vy=(0.0,), yaw=(0.0,))
 
@@ -111,7 +130,18 @@ class TestVerdict:
                 "fall_rate": fall_rate, "rollouts": 4}
 
     def test_within_every_goal_passes(self):
-        assert command_grid.verdict(self.grid, self.summary(), self.summary(fall_rate=0.05)) == {"passed": True, "why_not": ""}
+        assert command_grid.verdict(self.grid, self.summary(), self.summary(fall_rate=0.05)) == {
+            "passed": True, "why_not": "", "caveats": []}
+
+    def test_a_goal_that_ignoring_the_axis_meets_is_a_caveat_not_a_failure(self):
+        s = {**self.summary(yaw=0.201), "standing_error": {"vx": 0.5, "vy": 0.2, "yaw": 0.2},
+             "tracked": {"vx": 0.9, "vy": 0.75, "yaw": -0.05}}
+        v = command_grid.verdict(self.grid, s)
+        assert v["why_not"] == "mean |yaw error| 0.201 > 0.2"
+        assert len(v["caveats"]) == 1 and "yaw goal (0.2) is met by a robot that ignores yaw" in v["caveats"][0]
+        assert "removes -5% of it" in v["caveats"][0]
+        s["standing_error"]["yaw"] = 0.5
+        assert command_grid.verdict(self.grid, s)["caveats"] == []
 
     def test_each_goal_missed_is_named(self):
         v = command_grid.verdict(self.grid, self.summary(vx=0.11, yaw=0.3, falls=1), self.summary(fall_rate=0.25))

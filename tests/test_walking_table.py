@@ -132,7 +132,8 @@ class TestBatch:
 
 def grid_result(vx=0.05, falls=0):
     """``evaluate.run_grid``'s fields that the grid table reads."""
-    summary = {"cells": [{}] * 45, "mean_error": {"vx": vx, "vy": 0.02, "yaw": 0.1}, "cells_with_fall": falls}
+    summary = {"cells": [{}] * 45, "mean_error": {"vx": vx, "vy": 0.02, "yaw": 0.1}, "cells_with_fall": falls,
+               "tracked": {"vx": 0.8, "vy": 0.9, "yaw": 0.5}}
     return {"sim": "mujoco", "summary": summary, "pushed": {"fall_rate": 0.025},
             "verdict": {"passed": not falls, "why_not": "fell" if falls else ""}}
 
@@ -188,7 +189,7 @@ class TestBatchRun:
         assert [(r["robot"], r["seed"], r["error_vx"], r["cells_with_fall"]) for r in grids] == [
             ("xbot_l", 0, 0.05, 0), ("xbot_l", 1, 0.1, 1)]
         grid_text = (result["run_dir"] / "command_grids.md").read_text()
-        assert "| xbot_l | go2_to_xbot | 1 | mujoco | 45 | 0.100 / 0.020 / 0.100 | 1 | 2.5% | fails: fell |" in grid_text
+        assert "| xbot_l | go2_to_xbot | 1 | mujoco | 45 | 0.100 / 0.020 / 0.100 | 80% / 90% / 50% | 1 | 2.5% | fails: fell |" in grid_text
         assert "**1 of 2 runs meet every goal of the grid.**" in grid_text
         assert result["table_path"] == result["run_dir"] / "walking_checks.md"
         table = artifacts.read_metrics_csv(result["run_dir"] / "walking_checks.csv")
