@@ -83,6 +83,10 @@ class CommandGrid:
             raise ValueError(f"grid pushes: push_interval_s={self.push_interval_s} must be > 0 and "
                              f"max_push_vel={self.max_push_vel} >= 0")
 
+    def goals(self) -> dict[str, float]:
+        """The mean-error goal per axis."""
+        return {"vx": self.max_vx_error, "vy": self.max_vy_error, "yaw": self.max_yaw_error}
+
     def commands(self) -> np.ndarray:
         """[cells, 3] every (vx, vy, yaw) of the grid, vx slowest... yaw fastest."""
         mesh = np.meshgrid(self.vx, self.vy, self.yaw, indexing="ij")
@@ -240,8 +244,7 @@ def verdict(grid: CommandGrid, summary: Mapping[str, Any], pushed: Mapping[str, 
     reasons = []
     if summary["cells_with_fall"]:
         reasons.append(f"fell in {summary['cells_with_fall']} of {len(summary['cells'])} cells")
-    goals = {"vx": grid.max_vx_error, "vy": grid.max_vy_error, "yaw": grid.max_yaw_error}
-    for axis, goal in goals.items():
+    for axis, goal in grid.goals().items():
         err = summary["mean_error"][axis]
         if not err <= goal:  # NaN fails
             reasons.append(f"mean |{axis} error| {err:.3f} > {goal}")
@@ -254,9 +257,8 @@ def goal_caveats(grid: CommandGrid, summary: Mapping[str, Any]) -> list[str]:
     """The axes whose goal a robot that ignores that axis would meet on this grid: where the
     goal is at least the standing error (yaw rates {-0.3, 0, 0.3} give a standing error of
     exactly 0.2, the yaw goal). Meeting such a goal says nothing of tracking; read ``tracked``."""
-    goals = {"vx": grid.max_vx_error, "vy": grid.max_vy_error, "yaw": grid.max_yaw_error}
     out = []
-    for axis, goal in goals.items():
+    for axis, goal in grid.goals().items():
         standing = summary.get("standing_error", {}).get(axis, float("nan"))
         if standing <= goal:
             tracked = summary.get("tracked", {}).get(axis, float("nan"))
