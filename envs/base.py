@@ -74,6 +74,16 @@ class CommandConfig:
     """Share of sampled commands set to exactly (0, 0, 0), yaw included, so that standing
     still under a zero command is trained on purpose (0: off, and the command stream is the
     same as without the option)."""
+    turn_share: float = 0.0
+    """Share of sampled commands made turns in place: the planar part set to zero, the yaw rate
+    kept as drawn from ``yaw_rate``. Under full-range commands a yaw command nearly always comes
+    with a planar one, and a biped can earn most of the tracking reward by walking straight and
+    ignoring yaw (measured on Cassie, docs/command_grid.md); a share of pure yaw commands makes
+    turning the only way to earn ``tracking_ang_vel`` there. Disjoint from ``zero_share`` (one
+    draw decides: below ``zero_share`` zero, then below ``zero_share + turn_share`` a turn), so
+    the two must sum to at most 1. The quadrupeds' ``stand_still`` term reads only the planar
+    command and so also holds the pose under a turn in place: leave its weight at 0 with this
+    option. 0: off, and the command stream is the same as without the option."""
     curriculum: bool = False
     """Command curriculum, kept per env. legged_gym widens one global forward range whenever the
     resetting envs' mean velocity-tracking kernel tops 0.8; here every env carries its own level
@@ -122,6 +132,13 @@ class CommandConfig:
             raise ValueError(f"commands.curriculum_judge must be 'kernel' or 'gain', got {self.curriculum_judge!r}")
         if not 0.0 <= self.zero_share <= 1.0:
             raise ValueError(f"commands.zero_share must lie in [0, 1], got {self.zero_share}")
+        if not 0.0 <= self.turn_share <= 1.0:
+            raise ValueError(f"commands.turn_share must lie in [0, 1], got {self.turn_share}")
+        if self.zero_share + self.turn_share > 1.0:
+            raise ValueError(
+                f"commands.zero_share + commands.turn_share must be at most 1, got "
+                f"{self.zero_share} + {self.turn_share}"
+            )
         if self.resample_time_s <= 0:
             raise ValueError(f"commands.resample_time_s must be > 0, got {self.resample_time_s}")
 
@@ -404,9 +421,12 @@ class LeggedEnv(PipelineEnv):
         cmd = jax.random.uniform(rng, (3,), minval=lo, maxval=hi)
         planar = jnp.linalg.norm(cmd[:2]) >= c.zero_below
         cmd = cmd.at[:2].multiply(planar)
-        if c.zero_share > 0:  # static: without it the stream is the uniform draw's alone
-            stand = jax.random.bernoulli(jax.random.fold_in(rng, 1), c.zero_share)
-            cmd = jnp.where(stand, 0.0, cmd)
+        if c.zero_share > 0 or c.turn_share > 0:  # static: without them the uniform draw stands
+            # One draw decides both shares (bernoulli(key, p) is this same draw compared to p).
+            u = jax.random.uniform(jax.random.fold_in(rng, 1))
+            turn = (u >= c.zero_share) & (u < c.zero_share + c.turn_share)
+            cmd = cmd.at[:2].multiply(~turn)
+            cmd = jnp.where(u < c.zero_share, 0.0, cmd)
         return cmd
 
     # ----- reset --------------------------------------------------------------------------------

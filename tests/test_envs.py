@@ -279,6 +279,36 @@ class TestCommandSampling:
 
         with pytest.raises(ValueError, match=r"zero_share must lie in \[0, 1\], got 1.5"):
             dataclasses.replace(envs.default_config("go2").commands, zero_share=1.5)
+        with pytest.raises(ValueError, match=r"turn_share must lie in \[0, 1\], got -0.1"):
+            dataclasses.replace(envs.default_config("go2").commands, turn_share=-0.1)
+
+    def test_turn_share_off_keeps_the_stream(self):
+        base = self.draws(self.env(zero_below=0.0, zero_share=0.25))
+        np.testing.assert_array_equal(base, self.draws(self.env(zero_below=0.0, zero_share=0.25, turn_share=0.0)))
+
+    def test_a_share_of_commands_turns_in_place_with_the_drawn_yaw(self):
+        plain = self.draws(self.env(zero_below=0.0))
+        turns = self.draws(self.env(zero_below=0.0, turn_share=0.25))
+        turn = np.all(turns[:, :2] == 0.0, axis=1)
+        assert abs(turn.mean() - 0.25) < 0.03
+        np.testing.assert_array_equal(turns[:, 2], plain[:, 2])  # every yaw is the uniform draw's
+        assert np.all(turns[turn, 2] != 0.0)
+        np.testing.assert_array_equal(turns[~turn], plain[~turn])
+
+    def test_zero_and_turn_shares_are_disjoint(self):
+        zero_only = self.draws(self.env(zero_below=0.0, zero_share=0.3))
+        both = self.draws(self.env(zero_below=0.0, zero_share=0.3, turn_share=0.3))
+        zero = np.all(both == 0.0, axis=1)
+        turn = np.all(both[:, :2] == 0.0, axis=1) & ~zero
+        np.testing.assert_array_equal(zero, np.all(zero_only == 0.0, axis=1))  # the same commands stand
+        assert abs(turn.mean() - 0.3) < 0.03 and abs(zero.mean() - 0.3) < 0.03
+        np.testing.assert_array_equal(both[~zero & ~turn], zero_only[~zero & ~turn])
+
+    def test_shares_summing_past_one_are_refused(self):
+        import envs
+
+        with pytest.raises(ValueError, match=r"zero_share \+ commands.turn_share must be at most 1, got 0.6 \+ 0.5"):
+            dataclasses.replace(envs.default_config("go2").commands, zero_share=0.6, turn_share=0.5)
 
 
 class TestCommandCurriculum:
