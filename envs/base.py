@@ -76,10 +76,11 @@ class CommandConfig:
     same as without the option)."""
     turn_share: float = 0.0
     """Share of sampled commands made turns in place: the planar part set to zero, the yaw rate
-    kept as drawn from ``yaw_rate``. Under full-range commands a yaw command nearly always comes
-    with a planar one, and a biped can earn most of the tracking reward by walking straight and
-    ignoring yaw (measured on Cassie, docs/command_grid.md); a share of pure yaw commands makes
-    turning the only way to earn ``tracking_ang_vel`` there. Disjoint from ``zero_share`` (one
+    kept as drawn from ``yaw_rate``. Without it, only the draws whose planar part falls below
+    ``zero_below`` turn in place (about a quarter under XBot-L's ranges), and a biped can earn
+    most of its tracking reward while ignoring yaw (Cassie never turned, docs/command_grid.md,
+    until it trained on yaw-only commands); a larger share of pure yaw commands weighs turning
+    more. Disjoint from ``zero_share`` (one
     draw decides: below ``zero_share`` zero, then below ``zero_share + turn_share`` a turn), so
     the two must sum to at most 1. The quadrupeds' ``stand_still`` term reads only the planar
     command and so also holds the pose under a turn in place: leave its weight at 0 with this
