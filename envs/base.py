@@ -77,14 +77,13 @@ class CommandConfig:
     turn_share: float = 0.0
     """Share of sampled commands made turns in place: the planar part set to zero, the yaw rate
     kept as drawn from ``yaw_rate``. Without it, only the draws whose planar part falls below
-    ``zero_below`` turn in place (about a quarter under XBot-L's ranges), and a biped can earn
-    most of its tracking reward while ignoring yaw (Cassie never turned, docs/command_grid.md,
-    until it trained on yaw-only commands); a larger share of pure yaw commands weighs turning
-    more. Disjoint from ``zero_share`` (one
-    draw decides: below ``zero_share`` zero, then below ``zero_share + turn_share`` a turn), so
-    the two must sum to at most 1. The quadrupeds' ``stand_still`` term reads only the planar
-    command and so also holds the pose under a turn in place: leave its weight at 0 with this
-    option. 0: off, and the command stream is the same as without the option."""
+    ``zero_below`` turn in place (about a quarter under XBot-L's ranges). Disjoint from
+    ``zero_share`` (one draw decides: below ``zero_share`` zero, then below ``zero_share +
+    turn_share`` a turn), so the two must sum to at most 1. Measured on Cassie at 0.5
+    (docs/command_grid.md, stop 48): it made one of two seed roots turn, and only once the
+    policy already walked. The quadrupeds' ``stand_still`` term reads only the planar command
+    and so also holds the pose under a turn in place: leave its weight at 0 with this option.
+    0: off, and the command stream is the same as without the option."""
     curriculum: bool = False
     """Command curriculum, kept per env. legged_gym widens one global forward range whenever the
     resetting envs' mean velocity-tracking kernel tops 0.8; here every env carries its own level
