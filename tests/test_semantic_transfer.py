@@ -96,8 +96,9 @@ def go2_a1(robots):
 
 
 class TestGo2ToA1IsTheIdentity:
-    def test_the_map(self, robots):
-        m = semantic.build_map(robots["go2"], robots["a1"])
+    @pytest.mark.parametrize("source, target", [("go2", "a1"), ("a1", "go2")])  # a1_to_go2 runs the reverse
+    def test_the_map(self, robots, source, target):
+        m = semantic.build_map(robots[source], robots[target])
         assert np.array_equal(m.joint_source, np.arange(12)) and (m.joint_factor == 1.0).all()
         for key, e in m.obs.items():
             assert np.array_equal(e.source_index, np.arange(e.source_index.size)), key
