@@ -20,12 +20,12 @@ def go2_program():
     return cfg, make_program(cfg)
 
 
-def write_source(path, params, robot="go2", normalizer=None):
+def write_source(path, params, robot="go2", normalizer=None, stage="source"):
     if normalizer is None:
         normalizer = {k: {"mean": np.zeros(n, np.float32), "m2": np.ones(n, np.float32), "count": np.float32(1)}
                       for k, n in (("state", 45), ("privileged_state", 53))}
     artifacts.save_checkpoint(path, params, normalizer, jax.tree.map(lambda p: np.zeros(p.shape, bool), params),
-                              {"robot": robot, "stage": "source"})
+                              {"robot": robot, "stage": stage})
 
 
 class TestLoadSourceParams:
@@ -38,6 +38,16 @@ class TestLoadSourceParams:
         assert jax.tree.all(jax.tree.map(np.array_equal, loaded["params"], params))
         assert loaded["normalizer"]["state"].m2.shape == (45,) and float(loaded["normalizer"]["state"].count) == 1.0
         assert cfg.source_iterations == 0 and cfg.source.ppo.num_iterations == 2
+
+    def test_a_from_scratch_runs_target_checkpoint_serves_as_a_source(self, go2_program, tmp_path):
+        # A source trained alone (exp=go2_from_scratch, say) is a target checkpoint of that robot:
+        # the robot and the network decide, not the stage it was written by (docs/table4.md, stop 50).
+        cfg, program = go2_program
+        params = jax.tree.map(np.asarray, program.source_trainer.init_params(jax.random.PRNGKey(4)))
+        write_source(tmp_path / "target_scratch_seed0.npz", params, stage="target")
+        cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={tmp_path / 'target_scratch_seed0.npz'}"])
+        loaded = load_source_params(cfg, program)
+        assert jax.tree.all(jax.tree.map(np.array_equal, loaded["params"], params))
 
     def test_another_robot_is_refused(self, go2_program, tmp_path):
         _, program = go2_program
