@@ -42,7 +42,7 @@ class TestLoadSourceParams:
     def test_a_from_scratch_runs_target_checkpoint_serves_as_a_source(self, go2_program, tmp_path):
         # A source trained alone (exp=go2_from_scratch, say) is a target checkpoint of that robot:
         # the robot and the network decide, not the stage it was written by (docs/table4.md, stop 50).
-        cfg, program = go2_program
+        _, program = go2_program
         params = jax.tree.map(np.asarray, program.source_trainer.init_params(jax.random.PRNGKey(4)))
         write_source(tmp_path / "target_scratch_seed0.npz", params, stage="target")
         cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={tmp_path / 'target_scratch_seed0.npz'}"])
