@@ -28,6 +28,9 @@ def write_source(path, params, robot="go2", normalizer=None, stage="source"):
                               {"robot": robot, "stage": stage})
 
 
+# One xdist worker takes the whole class, so the smoke program (the module's fixture, about 15 s to
+# build) is built once rather than once per worker.
+@pytest.mark.xdist_group("source_checkpoint")
 class TestLoadSourceParams:
     def test_loads_the_checkpoint_params(self, go2_program, tmp_path):
         cfg, program = go2_program
