@@ -44,7 +44,7 @@ from ptrl_jax.io.checkpoints import load_init_target, load_source_params
 from ptrl_jax.io.outputs import save_outputs
 from ptrl_jax.io.overrides import build_config, flatten, load_experiment, parse_cli, to_dict
 from ptrl_jax.io.progress import Progress, interpolated_times_note
-from ptrl_jax.io.resume import RESUME_STATE, StopRequest, check_runtime, save_resume_state
+from ptrl_jax.io.resume import RESUME_STATE, StopRequest, check_runtime, host_cpu, save_resume_state
 
 USAGE = """usage: python -m ptrl_jax.run exp=NAME [scale=smoke|cpu|paper] [key=value ...]
        python -m ptrl_jax.run resume=runs/NAME/STAMP
@@ -215,6 +215,10 @@ def run(cfg: ExperimentConfig, run_dir: Path | None = None, show_progress: bool 
         notes.append(interpolated_times_note(progress.spread_over))
     if hosts.process_count() > 1:
         notes[0] += f" over {hosts.process_count()} processes"
+    if jax.devices()[0].platform == "cpu":  # the float results follow the host's instruction set
+        model, isa = host_cpu()
+        notes.append(f"Host CPU: {model or 'unknown'}; vector ISA: {isa or 'none listed'} (the same seed "
+                     f"gives other floats on a CPU with another ISA: docs/design.md, 'What a seed fixes')")
     initial = None
     result: dict = {}
     if main:

@@ -19,7 +19,7 @@ from ptrl_jax.io import artifacts
 from ptrl_jax.io.artifacts import CheckpointError
 from ptrl_jax.evaluate import policy_from_checkpoint
 from ptrl_jax.io.overrides import ConfigError
-from ptrl_jax.io.resume import RESUME_STATE, runtime_fingerprint
+from ptrl_jax.io.resume import RESUME_STATE, check_runtime, host_cpu, parse_cpuinfo, runtime_fingerprint
 
 # One xdist worker runs every test of the shared smoke run (tests/conftest.py: smoke_run).
 pytestmark = pytest.mark.xdist_group("smoke_go2_to_xbot")
@@ -157,6 +157,24 @@ class TestResumeUnderAnotherRuntime:
             run_cli.resume(tmp_path)
         assert run_cli.main([f"resume={tmp_path}"]) == 2
 
+    def test_a_cpu_with_another_vector_isa_is_refused(self, tmp_path):
+        """XLA compiles for the host's vector ISA, so a state saved on an AVX-512 host does not
+        continue bitwise on this one (or the reverse): refused, naming both sets."""
+        (tmp_path / "config.yaml").write_text("name: go2_to_xbot\nscale: smoke\n")
+        runtime = runtime_fingerprint(run_cli.build_config({"scale": "smoke"}))
+        assert runtime["cpu_isa"] == host_cpu()[1]  # the suite runs on CPU
+        other = "sse4_2 avx" if runtime["cpu_isa"] != "sse4_2 avx" else "sse4_2 avx fma avx2 avx512f"
+        artifacts.save_state(tmp_path / RESUME_STATE, {"x": np.zeros(1)},
+                             {"runtime": {**runtime, "cpu_isa": other}})
+        with pytest.raises(ConfigError, match=rf"another runtime.*cpu_isa: saved '{other}', now '{runtime['cpu_isa']}'"):
+            run_cli.resume(tmp_path)
+
+    def test_a_state_saved_before_the_cpu_was_recorded_is_not_refused_for_it(self, tmp_path):
+        """States written before ``cpu_isa`` existed lack the key; only keys both hold are compared."""
+        runtime = runtime_fingerprint(run_cli.build_config({"scale": "smoke"}))
+        runtime.pop("cpu_isa")
+        check_runtime(runtime, run_cli.build_config({"scale": "smoke"}), tmp_path)  # no error
+
     def test_a_resumed_process_takes_the_saved_xla_flags(self, tmp_path, monkeypatch):
         from ptrl_jax.io.xla_flags import configure_from_argv
 
@@ -168,6 +186,30 @@ class TestResumeUnderAnotherRuntime:
         monkeypatch.delenv("XLA_FLAGS")
         configure_from_argv(["exp=go2_to_xbot", "scale=cpu"])
         assert "XLA_FLAGS" not in os.environ
+
+
+class TestHostCpu:
+    """``parse_cpuinfo`` on hand-written /proc/cpuinfo texts."""
+
+    CPUINFO = ("processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel\t\t: 17\n"
+               "model name\t: AMD EPYC\nflags\t\t: fpu sse2 avx512bw avx2 fma avx sse4_2 avx512f avx512_bf16 "
+               "aes\n\nprocessor\t: 1\nvendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel\t\t: 1\n"
+               "model name\t: AMD EPYC\nflags\t\t: fpu sse2 avx2 fma avx sse4_2\n\n")
+
+    def test_model_with_family_and_number(self):
+        assert parse_cpuinfo(self.CPUINFO)[0] == "AMD EPYC (family 25 model 17)"
+
+    def test_isa_is_the_vector_flags_in_a_fixed_order_others_left_out(self):
+        assert parse_cpuinfo(self.CPUINFO)[1] == "sse4_2 avx fma avx2 avx512f avx512bw avx512_bf16"
+
+    def test_only_the_first_processor_is_read(self):
+        assert "avx512f" in parse_cpuinfo(self.CPUINFO)[1]  # the second block (no AVX-512) is ignored
+
+    def test_no_flags_line_gives_an_empty_isa(self):
+        assert parse_cpuinfo("processor\t: 0\nmodel name\t: Some CPU\n") == ("Some CPU", "")
+
+    def test_empty_text(self):
+        assert parse_cpuinfo("") == ("", "")
 
 
 class TestCtrlC:

@@ -53,16 +53,59 @@ class StopRequest:
         return False
 
 
+VECTOR_ISA_FLAGS = ("sse4_2", "avx", "fma", "avx2", "avx512f", "avx512dq", "avx512bw", "avx512vl",
+                    "avx512_vnni", "avx512_bf16", "avx512_fp16", "amx_tile", "amx_bf16", "amx_fp16")
+"""The x86 vector-ISA flags (as /proc/cpuinfo spells them) that XLA's CPU backend may compile
+for. XLA targets the host's, so two machines with different sets run other instructions for the
+same program, whose float results differ in the last bits; training amplifies that into another
+run (capping XLA at AVX on an AVX2 host changed every actor layer within 3 iterations,
+docs/table4.md, stop 52)."""
+
+
+def parse_cpuinfo(text: str) -> tuple[str, str]:
+    """(model, vector ISA) of the first processor in a /proc/cpuinfo text. The model is its model
+    name with its family and model numbers (VMs often show a bare 'AMD EPYC'); the ISA is the
+    flags of ``VECTOR_ISA_FLAGS`` it has, space-separated in that order ('' where it lists none)."""
+    fields: dict[str, str] = {}
+    for line in text.splitlines():
+        if not line.strip():
+            if fields:
+                break  # the first processor's block is enough: a VM's cores share one model
+            continue
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    flags = set(fields.get("flags", "").split())
+    model = fields.get("model name", "")
+    if "cpu family" in fields and "model" in fields:
+        model = f"{model} (family {fields['cpu family']} model {fields['model']})".strip()
+    return model, " ".join(f for f in VECTOR_ISA_FLAGS if f in flags)
+
+
+def host_cpu() -> tuple[str, str]:
+    """(model name, vector ISA) of this machine's CPU from /proc/cpuinfo; where there is none
+    (not Linux), the platform's processor string and ''."""
+    try:
+        return parse_cpuinfo(Path("/proc/cpuinfo").read_text())
+    except OSError:
+        import platform
+
+        return platform.processor() or platform.machine(), ""
+
+
 def runtime_fingerprint(cfg: ExperimentConfig) -> dict[str, str]:
     """What a run's float results depend on besides its config and state: library versions,
-    XLA flags, the device and the physics engine. A resume must match it bitwise."""
+    XLA flags, the device, the physics engine and, on CPU, the instruction set XLA compiles for
+    (``cpu_isa``). A resume must match it bitwise."""
     import jaxlib
     import mujoco
 
-    return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "mujoco": mujoco.__version__,
-            "xla_flags": os.environ.get("XLA_FLAGS", ""), "device": jax.devices()[0].device_kind,
-            "engine": resolve_engine(cfg.engine), "devices": str(sharding.resolve_devices(cfg.devices)),
-            "processes": str(jax.process_count())}
+    fingerprint = {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "mujoco": mujoco.__version__,
+                   "xla_flags": os.environ.get("XLA_FLAGS", ""), "device": jax.devices()[0].device_kind,
+                   "engine": resolve_engine(cfg.engine), "devices": str(sharding.resolve_devices(cfg.devices)),
+                   "processes": str(jax.process_count())}
+    if jax.devices()[0].platform == "cpu":  # on an accelerator XLA's float results do not follow the host
+        fingerprint["cpu_isa"] = host_cpu()[1]
+    return fingerprint
 
 
 def check_runtime(saved: dict[str, str], cfg: ExperimentConfig, run_dir: Path) -> None:
