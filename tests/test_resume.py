@@ -65,11 +65,11 @@ def metrics_without_wall_time(run_dir: Path) -> list[dict]:
     return rows
 
 
-# Slow: the killed run is a new process, and the smoke program holds host callbacks (progress,
-# MuJoCo C), which XLA's persistent cache does not keep, so that process compiles the whole
-# program again: 207 s of a worker in a clean CI run on a 2-core Zen 3 (stop 52), the suite's
-# costliest test after the shared fixtures, with the suite at 18 min 20 s against its 15-min
-# budget. The default suite keeps resuming bitwise from a saved state in new processes
+# Slow: the killed run is a new process, which took 207 s of a worker in a clean CI run on a
+# 2-core Zen 3 (stop 52), the suite's costliest test after the shared fixtures, with the suite at
+# 18 min 20 s against its 15-min budget. conftest's note says that process once found the smoke
+# program in XLA's persistent cache and only traced (about 1 min); why it now takes 207 s was not
+# looked into (a cache miss is the likely cause). The default suite keeps resuming bitwise from a saved state in new processes
 # (tests/test_hosts.py) and in process (tests/test_devices.py, tests/test_learning.py); what only
 # the kill -9 tests check is that a hard kill leaves a state that resumes: `pytest -m slow`.
 @pytest.mark.slow
