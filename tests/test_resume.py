@@ -65,14 +65,6 @@ def metrics_without_wall_time(run_dir: Path) -> list[dict]:
     return rows
 
 
-# Slow: the killed run is a new process, which took 207 s of a worker in a clean CI run on a
-# 2-core Zen 3 (stop 52), the suite's costliest test after the shared fixtures, with the suite at
-# 18 min 20 s against its 15-min budget. conftest's note says that process once found the smoke
-# program in XLA's persistent cache and only traced (about 1 min); why it now takes 207 s was not
-# looked into (a cache miss is the likely cause). The default suite keeps resuming bitwise from a saved state in new processes
-# (tests/test_hosts.py) and in process (tests/test_devices.py, tests/test_learning.py); what only
-# the kill -9 tests check is that a hard kill leaves a state that resumes: `pytest -m slow`.
-@pytest.mark.slow
 class TestKillAndResume:
     def test_kill_9_mid_run_then_resume_matches_uninterrupted(self, smoke_run, tmp_path):
         _, reference = smoke_run
