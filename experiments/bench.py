@@ -22,7 +22,6 @@ Prints, for Go2 at ``envs`` parallel environments, measured side by side in one 
 
 from __future__ import annotations
 
-import platform
 import resource
 import sys
 import time
@@ -39,24 +38,16 @@ from ptrl_jax.core.freeze import empty_mask  # noqa: E402
 from ptrl_jax.io.overrides import load_experiment, parse_cli  # noqa: E402
 from ptrl_jax.core.program import make_program  # noqa: E402
 from ptrl_jax.core.train import make_train  # noqa: E402
+from ptrl_jax.io.resume import host_cpu  # noqa: E402
 
 
 def machine() -> str:
-    """The CPU as the OS names it (``/proc/cpuinfo``), its core count and its wide-vector and
-    matrix extensions, with jax's devices: what a figure needs to be compared."""
+    """The CPU as the OS names it (``/proc/cpuinfo``, with family and model), its core count and
+    its vector extensions, with jax's devices: what a figure needs to be compared."""
     import os
 
-    name, flags = platform.processor() or platform.machine(), set()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                name = line.split(":", 1)[1].strip()
-            elif line.startswith("flags"):
-                flags = set(line.split(":", 1)[1].split())
-    except OSError:
-        pass
-    ext = [f for f in ("avx2", "avx512f", "avx512_bf16", "amx_bf16") if f in flags]
-    return (f"{name}, {os.cpu_count()} cores ({', '.join(ext) or 'no AVX'}), {jax.device_count()} "
+    name, isa = host_cpu()
+    return (f"{name}, {os.cpu_count()} cores ({isa or 'no vector ISA listed'}), {jax.device_count()} "
             f"{jax.devices()[0].platform} device(s), jax {jax.__version__}")
 
 

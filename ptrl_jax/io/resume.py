@@ -4,6 +4,7 @@ that stops a run at the end of a slice instead of killing it."""
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 import sys
@@ -81,6 +82,7 @@ def parse_cpuinfo(text: str) -> tuple[str, str]:
     return model, " ".join(f for f in VECTOR_ISA_FLAGS if f in flags)
 
 
+@functools.cache  # the CPU does not change under a process; the fingerprint is taken every slice
 def host_cpu() -> tuple[str, str]:
     """(model name, vector ISA) of this machine's CPU from /proc/cpuinfo; where there is none
     (not Linux), the platform's processor string and ''."""
