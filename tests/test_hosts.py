@@ -1,7 +1,7 @@
 """Several processes (issue 22, ``ptrl_jax/io/hosts.py``): the host keys refused before anything
-starts, an unreachable coordinator named within a bounded time, and two processes on 127.0.0.1
-with one CPU device each, started with the command a user types, against the one-process run;
-then (slow) a pair stopped by a signal on one of them and resumed by both."""
+starts, an unreachable coordinator named within a bounded time; and (slow) two processes on
+127.0.0.1 with one CPU device each, started with the command a user types, against the
+one-process run, then a pair stopped by a signal on one of them and resumed by both."""
 
 import csv
 import os
@@ -129,6 +129,13 @@ def _logs(out: Path) -> dict:
     return {p.name: p.read_text()[-3000:] for p in out.glob("*.log")}
 
 
+# Slow: three processes that each compile their own program (the pair's two processes and the
+# reference do not share XLA's persistent cache: each process's program has its own key,
+# measured 2026-12-07), 244 s of setup in a 19-minute suite on a 2-core Zen 3, over its 15-minute
+# budget. The default suite keeps the sharded program on two devices in one process
+# (tests/test_devices.py), the host keys and the unreachable coordinator above;
+# `python -m pytest -q -m slow` runs this pair and the signal test below.
+@pytest.mark.slow
 @pytest.mark.xdist_group("two_processes")
 class TestTwoProcesses:
     """A1 from scratch at smoke size, 2 seeds, MJX (MuJoCo C's thread pool cannot serve another
