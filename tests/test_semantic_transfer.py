@@ -84,6 +84,19 @@ def same(a, b) -> bool:
     return all(jax.tree.leaves(jax.tree.map(np.array_equal, a, b)))
 
 
+class TestARobotOntoItselfIsTheIdentity:
+    """The joystick presets' second stage (`<biped>_joystick`) maps a robot onto itself."""
+
+    @pytest.mark.parametrize("robot", ["tron1", "xbot_l"])
+    def test_a_robot_onto_itself_carries_every_leaf_bitwise(self, robots, robot):
+        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots[robot])
+        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots[robot])
+        params, norm = semantic.apply(semantic.build_map(robots[robot], robots[robot]),
+                                      src, src_norm, fresh, fresh_norm)
+        assert jax.tree.structure(params) == jax.tree.structure(src)
+        assert same(params, src) and same(norm, src_norm)
+
+
 @pytest.fixture(scope="module")
 def go2_a1(robots):
     """A random Go2 agent, a fresh A1 one, their map and the whole semantic transfer."""
@@ -116,16 +129,6 @@ class TestGo2ToA1IsTheIdentity:
         assert np.array_equal(a.mean, b.mean) and np.array_equal(a.std, b.std)
         assert np.array_equal(value_apply(src, normalize_obs(src_norm, obs, True), net),
                               value_apply(params, normalize_obs(norm, obs, True), net))
-
-    @pytest.mark.parametrize("robot", ["tron1", "xbot_l"])  # the two-stage presets (tron1_joystick)
-    def test_a_robot_onto_itself_carries_every_leaf_bitwise(self, robots, robot):
-        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots[robot])
-        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots[robot])
-        params, norm = semantic.apply(semantic.build_map(robots[robot], robots[robot]),
-                                      src, src_norm, fresh, fresh_norm)
-        assert jax.tree.structure(params) == jax.tree.structure(src)
-        assert all(jax.tree.leaves(jax.tree.map(np.array_equal, params, src)))
-        assert all(jax.tree.leaves(jax.tree.map(np.array_equal, norm, src_norm)))
 
     def test_noise_std_replaces_the_carried_std_and_nothing_else(self, robots):
         src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots["go2"])
