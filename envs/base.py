@@ -181,6 +181,14 @@ class LocomotionConfig:
     """Initial joint angles: default pose + U(-x, x), rad."""
     init_base_vel_noise: float = 0.2
     """Initial base linear and angular velocity: U(-x, x) per axis."""
+    init_heading_range: float = 0.0
+    """Initial heading of the base: turned about the vertical by U(-x, x) rad at every reset, at
+    most pi. 0: every episode starts facing +x, as in legged_gym and humanoid-gym (and the PRNG
+    stream is the same as without the option). The bipeds observe their heading (base_euler's
+    yaw), so from one start heading a policy can learn to hold it against every yaw command:
+    TRON1 turned back to heading 0 from 1.5 rad off within a second, at up to 2.4 rad/s, and
+    never followed a yaw command (docs/command_grid.md, stop 55). Rewards and commands read
+    velocities in the base frame, so they do not change with the heading."""
     only_positive_rewards: bool = True
     """Clip the total reward at zero (legged_gym, humanoid-gym): avoids learning to fall early."""
     commands: CommandConfig = field(default_factory=CommandConfig)
@@ -206,6 +214,8 @@ class LocomotionConfig:
             raise ValueError("solver_iterations and ls_iterations must be >= 1")
         if any(k < 0 for k in self.kp) or any(k < 0 for k in self.kd):
             raise ValueError("PD gains kp and kd must be >= 0")
+        if not 0.0 <= self.init_heading_range <= np.pi:
+            raise ValueError(f"init_heading_range must lie in [0, pi] rad, got {self.init_heading_range}")
         if self.engine not in ENGINES:
             raise ValueError(f"engine must be one of {ENGINES}, got {self.engine!r}")
 
@@ -438,6 +448,10 @@ class LeggedEnv(PipelineEnv):
         qpos = qpos.at[7:].set(jnp.clip(qpos[7:], self._joint_lower, self._joint_upper))
         base_vel = jax.random.uniform(k_v, (6,), minval=-1.0, maxval=1.0) * cfg.init_base_vel_noise
         qvel = jnp.zeros(self.sys.nv).at[:6].set(base_vel)
+        if cfg.init_heading_range > 0.0:  # static; off, the draws above are the only ones
+            yaw = jax.random.uniform(jax.random.fold_in(rng, 2), (), minval=-1.0, maxval=1.0) * cfg.init_heading_range
+            turn = jnp.array([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
+            qpos = qpos.at[3:7].set(math.quat_mul(turn, qpos[3:7]))
         return qpos, qvel
 
     def tracked(self, info: dict, steps: jax.Array) -> jax.Array:

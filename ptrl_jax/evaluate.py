@@ -151,10 +151,12 @@ def fixed_command_config(env_cfg: Any, command: tuple[float, float, float], seco
         zero_below=0.0,
         resample_time_s=seconds + 1.0,
     )
-    # Deterministic: no initial noise and no domain randomization (pushes, gain draws).
+    # Deterministic: no initial noise (joints, base velocity, heading) and no domain randomization
+    # (pushes, gain draws).
     randomization = dataclasses.replace(env_cfg.randomization, enabled=False)
     return dataclasses.replace(env_cfg, commands=commands, episode_length_s=seconds + 1.0,
-                               init_joint_noise=0.0, init_base_vel_noise=0.0, randomization=randomization)
+                               init_joint_noise=0.0, init_base_vel_noise=0.0, init_heading_range=0.0,
+                               randomization=randomization)
 
 
 class Actor:
