@@ -178,6 +178,54 @@ class TestAutoReset:
         assert np.all(np.isfinite(out.obs["state"])) and np.all(np.isfinite(out.pipeline_state.qpos))
 
 
+class TestStartHeading:
+    """``init_heading_range``: a uniform start heading, drawn apart from the other reset draws."""
+
+    RANGE = 1.0
+    KEYS = jax.random.split(jax.random.PRNGKey(3), 64)
+
+    @pytest.fixture(scope="class")
+    def tron1_envs(self):
+        cfg = envs.default_config("tron1")
+        return envs.make("tron1", cfg), envs.make("tron1", dataclasses.replace(cfg, init_heading_range=self.RANGE))
+
+    def test_off_the_base_starts_facing_x(self, tron1_envs):
+        off, _ = tron1_envs
+        qpos, _ = jax.vmap(off._initial_qpos_qvel)(self.KEYS)
+        np.testing.assert_array_equal(np.asarray(qpos[:, 3:7]), np.tile([1.0, 0.0, 0.0, 0.0], (len(self.KEYS), 1)))
+
+    def test_on_only_the_heading_changes(self, tron1_envs):
+        off, on = tron1_envs
+        (q0, v0), (q1, v1) = (jax.vmap(e._initial_qpos_qvel)(self.KEYS) for e in (off, on))
+        np.testing.assert_array_equal(np.asarray(q1[:, 7:]), np.asarray(q0[:, 7:]))  # joints
+        np.testing.assert_array_equal(np.asarray(q1[:, :3]), np.asarray(q0[:, :3]))  # position
+        np.testing.assert_array_equal(np.asarray(v1), np.asarray(v0))
+
+    def test_on_the_turn_is_about_the_vertical_and_within_the_range(self, tron1_envs):
+        _, on = tron1_envs
+        quat = np.asarray(jax.vmap(on._initial_qpos_qvel)(self.KEYS)[0][:, 3:7])
+        np.testing.assert_allclose(quat[:, 1:3], 0.0, atol=1e-7)  # no roll, no pitch
+        np.testing.assert_allclose(np.linalg.norm(quat, axis=1), 1.0, atol=1e-6)
+        yaw = 2.0 * np.arctan2(quat[:, 3], quat[:, 0])
+        assert np.all(np.abs(yaw) <= self.RANGE + 1e-6)
+        assert yaw.max() - yaw.min() > self.RANGE  # 64 draws spread over the interval
+
+    def test_a_biped_observes_the_start_heading(self, tron1_envs):
+        _, on = tron1_envs
+        state = jax.jit(on.reset)(self.KEYS[0])
+        quat = np.asarray(state.pipeline_state.qpos[3:7])
+        assert abs(float(state.obs["state"][-1]) - 2.0 * np.arctan2(quat[3], quat[0])) < 1e-5  # base_euler's yaw, newest frame
+
+    def test_a_range_beyond_pi_is_refused(self):
+        with pytest.raises(ValueError, match=r"init_heading_range must lie in \[0, pi\]"):
+            dataclasses.replace(envs.default_config("tron1"), init_heading_range=4.0)
+
+    def test_the_grid_and_walking_check_start_facing_x(self):
+        from ptrl_jax.evaluate import fixed_command_config
+        cfg = dataclasses.replace(envs.default_config("tron1"), init_heading_range=np.pi)
+        assert fixed_command_config(cfg, (0.3, 0.0, 0.0), 20.0).init_heading_range == 0.0
+
+
 class TestRegistry:
     def test_unknown_robot_suggests(self):
         with pytest.raises(ValueError, match="did you mean 'go2'"):
