@@ -151,6 +151,12 @@ class BipedConfig(LocomotionConfig):
 
     frame_stack: int = 15
     """Observation frames stacked for the actor (humanoid-gym: 15)."""
+    observe_heading: bool = True
+    """Whether base_euler's yaw, the base's heading in the world, is observed (humanoid-gym's
+    layout). False: that entry reads 0 in every frame, actor's and critic's, and the layout stays.
+    A velocity-command policy needs no heading (legged_gym's and Playground's joystick policies
+    see none), and with it TRON1's policies learned to hold one heading against every yaw command
+    (docs/command_grid.md, stop 55)."""
     cycle_time: float = 0.64
     """Gait period, s."""
     target_joint_pos_scale: float = 0.17
@@ -456,7 +462,7 @@ class BipedEnv(LeggedEnv):
                 self.joint_vel(data) * 0.05,
                 info["last_action"],
                 self.base_ang_vel(data),
-                math.quat_to_euler(self.base_quat(data)),
+                math.quat_to_euler(self.base_quat(data)) * (1.0 if self.config.observe_heading else jnp.array([1.0, 1.0, 0.0])),
             ]
         )
 

@@ -216,6 +216,18 @@ class TestStartHeading:
         quat = np.asarray(state.pipeline_state.qpos[3:7])
         assert abs(float(state.obs["state"][-1]) - 2.0 * np.arctan2(quat[3], quat[0])) < 1e-5  # base_euler's yaw, newest frame
 
+    def test_a_biped_that_does_not_observe_its_heading_reads_zero_there(self, tron1_envs):
+        _, on = tron1_envs
+        blind = envs.make("tron1", dataclasses.replace(on.config, observe_heading=False))
+        seen, unseen = (jax.jit(e.reset)(self.KEYS[0]) for e in (on, blind))
+        frame = on.frame_size
+        heading = np.arange(on.config.frame_stack) * frame + frame - 1
+        assert abs(float(seen.obs["state"][-1])) > 1e-3  # the draw turned it
+        np.testing.assert_array_equal(np.asarray(unseen.obs["state"])[heading], 0.0)
+        np.testing.assert_array_equal(np.delete(np.asarray(unseen.obs["state"]), heading),
+                                      np.delete(np.asarray(seen.obs["state"]), heading))
+        assert float(unseen.obs["privileged_state"][frame - 1]) == 0.0  # the critic's frame too
+
     def test_a_range_beyond_pi_is_refused(self):
         with pytest.raises(ValueError, match=r"init_heading_range must lie in \[0, pi\]"):
             dataclasses.replace(envs.default_config("tron1"), init_heading_range=4.0)
