@@ -151,6 +151,13 @@ class BipedConfig(LocomotionConfig):
 
     frame_stack: int = 15
     """Observation frames stacked for the actor (humanoid-gym: 15)."""
+    euler_order: str = "xyz"
+    """The convention of base_euler (observed, and read by the orientation term). ``xyz``: Brax's
+    ``quat_to_euler`` (intrinsic x-y'-z''), whose roll and pitch are tilts about the world's axes,
+    so one body tilt reads differently at another heading (pitch 0.1, roll 0.05 read roll -0.10,
+    pitch -0.05 at heading 2.5 rad). ``zyx``: yaw, then pitch, then roll (humanoid-gym's
+    get_euler_xyz), whose roll and pitch are the body's, whatever the heading. ``xyz`` is what
+    every biped so far was trained on; ``zyx`` is not yet measured (docs/command_grid.md, stop 55)."""
     observe_heading: bool = True
     """Whether base_euler's yaw, the base's heading in the world, is observed (humanoid-gym's
     layout). False: that entry reads 0 in every frame, actor's and critic's, and the layout stays.
@@ -200,6 +207,8 @@ class BipedConfig(LocomotionConfig):
         super().__post_init__()
         if self.reward_set not in REWARD_SETS:
             raise ValueError(f"reward_set must be one of {REWARD_SETS}, got {self.reward_set!r}")
+        if self.euler_order not in ("xyz", "zyx"):
+            raise ValueError(f"euler_order must be 'xyz' or 'zyx', got {self.euler_order!r}")
 
     @property
     def active_rewards(self):
@@ -462,9 +471,20 @@ class BipedEnv(LeggedEnv):
                 self.joint_vel(data) * 0.05,
                 info["last_action"],
                 self.base_ang_vel(data),
-                math.quat_to_euler(self.base_quat(data)) * (1.0 if self.config.observe_heading else jnp.array([1.0, 1.0, 0.0])),
+                self.base_euler(data) * (1.0 if self.config.observe_heading else jnp.array([1.0, 1.0, 0.0])),
             ]
         )
+
+    def base_euler(self, data) -> jax.Array:
+        """(roll, pitch, yaw) of the base in ``euler_order``'s convention."""
+        q = self.base_quat(data)
+        if self.config.euler_order == "xyz":  # static
+            return math.quat_to_euler(q)
+        w, x, y, z = q[0], q[1], q[2], q[3]
+        roll = jnp.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+        pitch = jnp.arcsin(jnp.clip(2.0 * (w * y - z * x), -1.0, 1.0))
+        yaw = jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        return jnp.stack([roll, pitch, yaw])
 
     def _step_features(self, data, info):
         ref, stance = self.reference(info)
@@ -546,7 +566,7 @@ class BipedEnv(LeggedEnv):
         yaw_roll = jnp.linalg.norm(q_err[self._hip_left]) + jnp.linalg.norm(q_err[self._hip_right])
         yaw_roll = jnp.clip(yaw_roll - 0.1, 0.0, 50.0)
 
-        euler = math.quat_to_euler(self.base_quat(data))
+        euler = self.base_euler(data)
         stance_f = stance.astype(jnp.float32)
         stance_height = jnp.sum(foot_pos[:, 2] * stance_f) / jnp.maximum(jnp.sum(stance_f), 1.0)
         base_acc = jnp.where(valid_history, jnp.linalg.norm(info["last_base_vel"] - data.qvel[:6]), 0.0)

@@ -238,6 +238,41 @@ class TestStartHeading:
         assert fixed_command_config(cfg, (0.3, 0.0, 0.0), 20.0).init_heading_range == 0.0
 
 
+class TestEulerOrder:
+    """``euler_order``: the base_euler convention of the bipeds, on hand-built quaternions."""
+
+    @staticmethod
+    def about(axis, angle):
+        return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * np.asarray(axis, float)])
+
+    def turned_and_tilted(self, heading):
+        """Heading ``heading``, then the body pitched 0.1 and rolled 0.05 rad (yaw, pitch, roll)."""
+        from brax import math
+        q = math.quat_mul(self.about([0, 0, 1], heading), math.quat_mul(self.about([0, 1, 0], 0.1), self.about([1, 0, 0], 0.05)))
+        return type("Data", (), {"qpos": jnp.concatenate([jnp.zeros(3), q])})()
+
+    @pytest.fixture(scope="class")
+    def tron1(self):
+        return {order: envs.make("tron1", dataclasses.replace(envs.default_config("tron1"), euler_order=order))
+                for order in ("xyz", "zyx")}
+
+    @pytest.mark.parametrize("heading", [0.0, 0.5, 1.5, 2.5, -3.0])
+    def test_zyx_reads_the_body_tilt_at_every_heading(self, tron1, heading):
+        euler = np.asarray(tron1["zyx"].base_euler(self.turned_and_tilted(heading)))
+        np.testing.assert_allclose(euler, [0.05, 0.1, heading], atol=1e-5)
+
+    def test_xyz_is_braxs_and_its_tilt_turns_with_the_heading(self, tron1):
+        from brax import math
+        data = self.turned_and_tilted(2.5)
+        euler = np.asarray(tron1["xyz"].base_euler(data))
+        np.testing.assert_array_equal(euler, np.asarray(math.quat_to_euler(data.qpos[3:7])))
+        np.testing.assert_allclose(euler[:2], [-0.1, -0.05], atol=0.01)  # the world's axes, not the body's
+
+    def test_an_unknown_order_is_refused(self):
+        with pytest.raises(ValueError, match="euler_order must be 'xyz' or 'zyx', got 'zxy'"):
+            dataclasses.replace(envs.default_config("tron1"), euler_order="zxy")
+
+
 class TestRegistry:
     def test_unknown_robot_suggests(self):
         with pytest.raises(ValueError, match="did you mean 'go2'"):
