@@ -157,7 +157,8 @@ class BipedConfig(LocomotionConfig):
     so one body tilt reads differently at another heading (pitch 0.1, roll 0.05 read roll -0.10,
     pitch -0.05 at heading 2.5 rad). ``zyx``: yaw, then pitch, then roll (humanoid-gym's
     get_euler_xyz), whose roll and pitch are the body's, whatever the heading. ``xyz`` is what
-    every biped so far was trained on; ``zyx`` is not yet measured (docs/command_grid.md, stop 55)."""
+    every biped so far was trained on; with ``zyx`` and ``observe_heading=false`` a TRON1 policy met
+    every grid goal and turned (docs/command_grid.md, stop 55; one seed)."""
     observe_heading: bool = True
     """Whether base_euler's yaw, the base's heading in the world, is observed (humanoid-gym's
     layout). False: that entry reads 0 in every frame, actor's and critic's, and the layout stays.
