@@ -472,9 +472,14 @@ class BipedEnv(LeggedEnv):
                 self.joint_vel(data) * 0.05,
                 info["last_action"],
                 self.base_ang_vel(data),
-                self.base_euler(data) * (1.0 if self.config.observe_heading else jnp.array([1.0, 1.0, 0.0])),
+                self._observed_euler(data),
             ]
         )
+
+    def _observed_euler(self, data) -> jax.Array:
+        """base_euler as the frame carries it: the heading read as 0 unless ``observe_heading``."""
+        euler = self.base_euler(data)
+        return euler if self.config.observe_heading else euler.at[2].set(0.0)  # static branch
 
     def base_euler(self, data) -> jax.Array:
         """(roll, pitch, yaw) of the base in ``euler_order``'s convention."""
