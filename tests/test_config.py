@@ -126,6 +126,15 @@ class TestPresets:
         for robot, stage in cfg.targets.items():
             assert stage.env == envs.default_config(robot) and stage.ppo == cfg.target.ppo
 
+    def test_tron1_joystick_trains_both_stages_on_the_turning_observation(self):
+        """Without the heading input and with the body's roll and pitch in the source stage and in
+        the randomized one (docs/command_grid.md, stop 56), the layout the semantic map carries."""
+        cfg = load_experiment("tron1_joystick", ["scale=cpu"])
+        for stage in (cfg.source, cfg.targets["tron1"]):
+            assert (stage.env.observe_heading, stage.env.euler_order) == (False, "zyx")
+            assert stage.env.randomization.enabled is (stage is not cfg.source)
+        assert (cfg.source.ppo.num_iterations, cfg.target.ppo.num_iterations) == (1400, 1400)
+
     def test_extends_merges_scales_key_by_key(self):
         cfg = load_experiment("xbot_to_go2", ["scale=smoke", "target.ppo.num_iterations=3"])
         assert cfg.target.ppo.num_iterations == 3  # the command line wins
