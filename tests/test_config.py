@@ -127,8 +127,8 @@ class TestPresets:
             assert stage.env == envs.default_config(robot) and stage.ppo == cfg.target.ppo
 
     def test_tron1_joystick_trains_both_stages_on_the_turning_observation(self):
-        """Without the heading input and with the body's roll and pitch in the source stage and in
-        the randomized one (docs/command_grid.md, stop 56), the layout the semantic map carries."""
+        """Both stages without the heading input and with the body's roll and pitch, so the
+        randomized stage sees the observation its source learned on (docs/command_grid.md, stop 56)."""
         cfg = load_experiment("tron1_joystick", ["scale=cpu"])
         for stage in (cfg.source, cfg.targets["tron1"]):
             assert (stage.env.observe_heading, stage.env.euler_order) == (False, "zyx")
