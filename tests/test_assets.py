@@ -78,7 +78,8 @@ XBOT_AXES = {
     "ankle_pitch_joint": ((0, 1, 0), (0, -1, 0)),
     "ankle_roll_joint": ((1, 0, 0), (1, 0, 0)),
 }
-XBOT_FEET = ["left_foot", "right_foot"]
+# The soles' contacts: four spheres per foot at the corners of the foot box (which is visual only).
+XBOT_FEET = [f"{side}_{end}_{edge}" for side in ("left", "right") for end in ("heel", "toe") for edge in ("outer", "inner")]
 # humanoid-gym XBotLCfg / sim2sim gains (FACTS.md section 7).
 XBOT_KP = [200, 200, 350, 350, 15, 15] * 2
 XBOT_KD = 10.0
@@ -273,6 +274,28 @@ class TestXBotL(_Common):
             g = d.geom(f"{side}_foot")
             np.testing.assert_allclose(site[:2], g.xpos[:2], atol=1e-9)
             assert site[2] == pytest.approx(g.xpos[2] - size[2], abs=1e-9)
+
+    def test_sole_spheres_touch_at_the_foot_box_bottom_corners(self, model):
+        # The contact spheres' lowest points are the four bottom corners of the (visual) foot
+        # box, so the sole's stand and support polygon are the box's: MJX's box-plane contact
+        # would keep only the corners within 1 mm of the deepest one (docs/engines.md).
+        d = mujoco.MjData(model)
+        mujoco.mj_resetDataKeyframe(model, d, model.key("home").id)
+        mujoco.mj_forward(model, d)
+        for side in ("left", "right"):
+            box = model.geom(f"{side}_foot")
+            assert box.contype[0] == 0 and box.conaffinity[0] == 0
+            rot = d.geom(f"{side}_foot").xmat.reshape(3, 3)
+            corners = {
+                tuple(np.round(d.geom(f"{side}_foot").xpos + rot @ (np.array([sx, sy, -1.0]) * box.size), 9))
+                for sx in (-1, 1) for sy in (-1, 1)
+            }
+            lowest = set()
+            for name in (f for f in XBOT_FEET if f.startswith(side)):
+                g = model.geom(name)
+                assert g.type[0] == mujoco.mjtGeom.mjGEOM_SPHERE
+                lowest.add(tuple(np.round(d.geom(name).xpos - [0.0, 0.0, g.size[0]], 9)))
+            assert lowest == corners
 
     @pytest.mark.xfail(
         strict=True,
