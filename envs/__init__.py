@@ -38,9 +38,10 @@ def _import_mjx_quietly() -> None:
 
 _import_mjx_quietly()
 
+from envs.base import asset_sha256  # noqa: E402
 from envs.registry import ROBOTS, default_config, family, make, robot_names  # noqa: E402
 from envs.gym_env import GYM_IDS, LocomotionGymEnv, register as _register_gymnasium  # noqa: E402
 
 _register_gymnasium()  # gymnasium.make("ptrl/Go2-v0") works once `envs` is imported
 
-__all__ = ["GYM_IDS", "ROBOTS", "LocomotionGymEnv", "default_config", "family", "make", "robot_names"]
+__all__ = ["GYM_IDS", "ROBOTS", "LocomotionGymEnv", "asset_sha256", "default_config", "family", "make", "robot_names"]

@@ -49,6 +49,19 @@ def _assets_dir() -> Path:
 
 ASSETS_DIR = _assets_dir()
 
+
+def asset_sha256(asset: str) -> str:
+    """The first 16 hex digits of the SHA-256 of the MJCF file ``asset`` (a name in
+    ``ASSETS_DIR``): which version of a robot's model a checkpoint or a resume state was trained
+    on. A changed model changes a policy's physics (XBot-L's soles, stop 57) with every config and
+    array shape the same."""
+    import hashlib
+
+    path = ASSETS_DIR / asset
+    if not path.is_file():
+        raise FileNotFoundError(f"robot asset {path} not found (config asset={asset!r})")
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
 CURRICULUM_SUMS = ("tracking_sum", "command_sq_sum", "error_sq_sum")
 """Per-env sums over the episode (or command period) that the command curriculum judges
 (``LeggedEnv.tracked``): the ``tracking_lin_vel`` kernel, the squared planar command, and the

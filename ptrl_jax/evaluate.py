@@ -23,6 +23,7 @@ import dataclasses
 import functools
 import json
 import sys
+import warnings
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -398,8 +399,20 @@ def policy_from_checkpoint(path: str) -> dict[str, Any]:
     network = apply_overrides(NetworkConfig(), flatten(meta.get("network", {})))
     normalizer = {k: type_stats(v) for k, v in ckpt["normalizer"].items()}
     check_policy_fits_robot(path, ckpt["params"], robot, env_cfg)
+    warn_if_model_changed(path, meta, env_cfg.asset)
     return {"robot": robot, "env": env_cfg, "network": network, "params": ckpt["params"],
             "normalizer": normalizer, "normalize_observations": meta.get("normalize_observations", True)}
+
+
+def warn_if_model_changed(path: str, meta: Mapping[str, Any], asset: str) -> None:
+    """Warn when a checkpoint was trained on another version of its robot's MJCF than the one
+    installed (``asset_sha256`` in its metadata; checkpoints written before stop 57 carry none).
+    The policy still plays, on the current model, as its config and shapes are unchanged."""
+    saved, now = meta.get("asset_sha256"), envs.asset_sha256(asset)
+    if saved is not None and saved != now:
+        warnings.warn(f"checkpoint {path} was trained on another version of {asset} (sha256 {saved}, "
+                      f"installed {now}); it plays on the installed model, so what it measures may "
+                      f"differ from what it measured when it was trained", UserWarning, stacklevel=3)
 
 
 def check_policy_fits_robot(path: str, params: Any, robot: str, env_cfg: Any) -> None:

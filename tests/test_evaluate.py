@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import envs
 from ptrl_jax import evaluate
@@ -152,3 +153,32 @@ class TestCheckCli:
     def test_a_bad_check_value_is_refused_naming_the_key(self, capsys):
         assert evaluate.main(["ckpt=x.npz", "check=perhaps"]) == 2
         assert "check" in capsys.readouterr().err
+
+
+class TestModelVersion:
+    """Checkpoints carry their robot model's ``asset_sha256``; ``evaluate`` warns when the installed
+    MJCF is another version (the policy still plays, on the installed model)."""
+
+    def test_the_digest_follows_the_file(self, tmp_path, monkeypatch):
+        import envs.base
+
+        (tmp_path / "go2.xml").write_bytes((envs.base.ASSETS_DIR / "go2.xml").read_bytes())
+        monkeypatch.setattr(envs.base, "ASSETS_DIR", tmp_path)
+        same = envs.asset_sha256("go2.xml")
+        (tmp_path / "go2.xml").write_bytes((tmp_path / "go2.xml").read_bytes() + b"\n")
+        assert len(same) == 16 and envs.asset_sha256("go2.xml") != same
+
+    def test_a_missing_asset_is_named(self):
+        with pytest.raises(FileNotFoundError, match="no_such_robot.xml"):
+            envs.asset_sha256("no_such_robot.xml")
+
+    def test_another_model_version_warns_naming_both_digests(self):
+        now = envs.asset_sha256("xbot_l.xml")
+        with pytest.warns(UserWarning, match=rf"another version of xbot_l.xml \(sha256 0123456789abcdef, installed {now}\)"):
+            evaluate.warn_if_model_changed("old.npz", {"asset_sha256": "0123456789abcdef"}, "xbot_l.xml")
+
+    @pytest.mark.parametrize("meta", [{}, "current"])
+    def test_the_same_model_or_an_unrecorded_one_is_silent(self, meta, recwarn):
+        meta = {"asset_sha256": envs.asset_sha256("xbot_l.xml")} if meta == "current" else meta
+        evaluate.warn_if_model_changed("ckpt.npz", meta, "xbot_l.xml")
+        assert not [w for w in recwarn if "another version" in str(w.message)]

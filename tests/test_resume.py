@@ -169,6 +169,18 @@ class TestResumeUnderAnotherRuntime:
         with pytest.raises(ConfigError, match=rf"another runtime.*cpu_isa: saved '{other}', now '{runtime['cpu_isa']}'"):
             run_cli.resume(tmp_path)
 
+    def test_a_changed_robot_model_is_refused_naming_the_file(self, tmp_path):
+        """A state saved on another version of a robot's MJCF (XBot-L's box soles before stop 57)
+        has every shape of the new one, so only the fingerprint's ``models`` can tell."""
+        (tmp_path / "config.yaml").write_text("name: go2_to_xbot\nscale: smoke\n")
+        runtime = runtime_fingerprint(run_cli.build_config({"scale": "smoke"}))
+        now = dict(part.split("=") for part in runtime["models"].split("; "))
+        assert set(now) == {"go2.xml", "xbot_l.xml"}  # go2_to_xbot trains both
+        old = runtime["models"].replace(now["xbot_l.xml"], "0123456789abcdef")
+        artifacts.save_state(tmp_path / RESUME_STATE, {"x": np.zeros(1)}, {"runtime": {**runtime, "models": old}})
+        with pytest.raises(ConfigError, match=r"another runtime.*models: saved .*xbot_l.xml=0123456789abcdef"):
+            run_cli.resume(tmp_path)
+
     def test_a_state_saved_before_the_cpu_was_recorded_is_not_refused_for_it(self, tmp_path):
         """States written before ``cpu_isa`` existed lack the key; only keys both hold are compared."""
         runtime = runtime_fingerprint(run_cli.build_config({"scale": "smoke"}))

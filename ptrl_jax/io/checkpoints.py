@@ -11,6 +11,7 @@ from typing import Any
 import jax
 import numpy as np
 
+import envs
 from ptrl_jax.config import ExperimentConfig
 from ptrl_jax.core import normalization
 from ptrl_jax.core.program import Program, ProgramOutput
@@ -25,6 +26,7 @@ def stage_meta(cfg: ExperimentConfig, stage: str, preset: str, seed: int, robot:
         "robot": sc.robot, "stage": stage, "preset": preset, "seed": seed, "experiment": cfg.name,
         "network": to_dict(cfg.network), "env": to_dict(sc.env),
         "normalize_observations": sc.ppo.normalize_observations,
+        "asset_sha256": envs.asset_sha256(sc.env.asset),
     }
 
 

@@ -14,6 +14,7 @@ from typing import Any
 
 import jax
 
+import envs
 from envs.mujoco_engine import resolve_engine
 from ptrl_jax.config import ConfigError, ExperimentConfig
 from ptrl_jax.core import sharding
@@ -96,18 +97,27 @@ def host_cpu() -> tuple[str, str]:
 
 def runtime_fingerprint(cfg: ExperimentConfig) -> dict[str, str]:
     """What a run's float results depend on besides its config and state: library versions,
-    XLA flags, the device, the physics engine and, on CPU, the instruction set XLA compiles for
-    (``cpu_isa``). A resume must match it bitwise."""
+    XLA flags, the device, the physics engine, the robots' MJCF files (``models``: each trained
+    stage's asset and its ``envs.asset_sha256``) and, on CPU, the instruction set XLA compiles for
+    (``cpu_isa``). A resume must match it bitwise. A state saved before a key existed is not
+    checked on that key."""
     import jaxlib
     import mujoco
 
     fingerprint = {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "mujoco": mujoco.__version__,
                    "xla_flags": os.environ.get("XLA_FLAGS", ""), "device": jax.devices()[0].device_kind,
                    "engine": resolve_engine(cfg.engine), "devices": str(sharding.resolve_devices(cfg.devices)),
-                   "processes": str(jax.process_count())}
+                   "processes": str(jax.process_count()), "models": models_fingerprint(cfg)}
     if jax.devices()[0].platform == "cpu":  # on an accelerator XLA's float results do not follow the host
         fingerprint["cpu_isa"] = host_cpu()[1]
     return fingerprint
+
+
+def models_fingerprint(cfg: ExperimentConfig) -> str:
+    """``asset=sha256`` of every robot model the run trains on (the source's only when it trains
+    one), sorted: ``"go2.xml=1a2b...; xbot_l.xml=3c4d..."``."""
+    stages = ([cfg.source] if cfg.trains_source else []) + list(cfg.targets.values())
+    return "; ".join(sorted({f"{st.env.asset}={envs.asset_sha256(st.env.asset)}" for st in stages}))
 
 
 def check_runtime(saved: dict[str, str], cfg: ExperimentConfig, run_dir: Path) -> None:
