@@ -317,8 +317,9 @@ def format_markdown(robot: str, sim: str, grid: CommandGrid, summary: Mapping[st
 def write_outputs(out_dir: Path, robot: str, sim: str, grid: CommandGrid, summary: Mapping[str, Any],
                   pushed: Mapping[str, Any] | None, judged: Mapping[str, Any],
                   walking_check: Sequence[Mapping[str, Any]] = ()) -> list[Path]:
-    """``grid.md``, ``grid.csv`` (a row per cell), ``grid.json`` (everything) and ``grid.png``
-    (the heat map) in ``out_dir``; the paths written."""
+    """``grid.md``, ``grid.csv`` (a row per cell), ``grid.json`` (everything, with the robot
+    model's ``envs.asset_sha256``) and ``grid.png`` (the heat map) in ``out_dir``; the paths
+    written."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / f"grid.{ext}" for ext in ("md", "csv", "json", "png")]
@@ -330,7 +331,9 @@ def write_outputs(out_dir: Path, robot: str, sim: str, grid: CommandGrid, summar
         for k, c in enumerate(summary["cells"]):
             w.writerow([*c["command"], *c["mean_velocity"], *c["error"], *c["rms_error"], int(c["fell"]),
                         c["time_up_s"]] + ([pushed["cells"][k]["fall_rate"]] if pushed else []))
-    paths[2].write_text(json.dumps({"robot": robot, "sim": sim, "grid": dataclasses.asdict(grid),
+    asset = envs.default_config(robot).asset  # the model graded on, by version
+    paths[2].write_text(json.dumps({"robot": robot, "sim": sim, "model": {asset: envs.asset_sha256(asset)},
+                                    "grid": dataclasses.asdict(grid),
                                     "summary": summary, "pushed": pushed, "verdict": judged,
                                     "walking_check": list(walking_check)}, indent=2))
     from ptrl_jax.io.figures import plot_command_grid

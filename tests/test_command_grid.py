@@ -203,3 +203,17 @@ class TestGridCli:
         assert evaluate.main([f"ckpt={tmp_path}/x.npz", "grid=true", f"out={tmp_path}/g"]) == 2
         assert "already holds a grid" in capsys.readouterr().err
         assert json.loads((tmp_path / "g" / "grid.json").read_text()) == {"kept": True}
+
+
+class TestOutputs:
+    def test_grid_json_names_the_model_version_it_graded(self, tmp_path):
+        """grid.json records the robot's MJCF digest, so a grid can be told from one graded on
+        another version of the model (XBot-L's soles changed in stop 57)."""
+        grid = CommandGrid(vx=(0.0, 0.5), vy=(0.0,), yaw=(0.0,))
+        summary = command_grid.summarize_grid(grid.commands(), records([[4], [4]], [[(0.0, 0.0, 0.0)], [(0.4, 0.0, 0.0)]],
+                                                                        [[False], [False]]))
+        judged = command_grid.verdict(grid, summary, None)
+        command_grid.write_outputs(tmp_path, "xbot_l", "mujoco", grid, summary, None, judged)
+        saved = json.loads((tmp_path / "grid.json").read_text())
+        assert saved["model"] == {"xbot_l.xml": envs.asset_sha256("xbot_l.xml")}
+        np.testing.assert_allclose(saved["summary"]["mean_error"]["vx"], 0.05)
