@@ -126,14 +126,18 @@ class TestPresets:
         for robot, stage in cfg.targets.items():
             assert stage.env == envs.default_config(robot) and stage.ppo == cfg.target.ppo
 
-    def test_tron1_joystick_trains_both_stages_on_the_turning_observation(self):
+    @pytest.mark.parametrize("exp,robot,iterations", [("tron1_joystick", "tron1", (1400, 1400)),
+                                                      ("xbot_l_joystick", "xbot_l", (1400, 700))])
+    def test_biped_joystick_trains_both_stages_on_the_turning_observation(self, exp, robot, iterations):
         """Both stages without the heading input and with the body's roll and pitch, so the
-        randomized stage sees the observation its source learned on (docs/command_grid.md, stop 56)."""
-        cfg = load_experiment("tron1_joystick", ["scale=cpu"])
-        for stage in (cfg.source, cfg.targets["tron1"]):
+        randomized stage sees the observation its source learned on (docs/command_grid.md, stops
+        56 and 57)."""
+        cfg = load_experiment(exp, ["scale=cpu"])
+        assert cfg.source.robot == robot and list(cfg.targets) == [robot]
+        for stage in (cfg.source, cfg.targets[robot]):
             assert (stage.env.observe_heading, stage.env.euler_order) == (False, "zyx")
             assert stage.env.randomization.enabled is (stage is not cfg.source)
-        assert (cfg.source.ppo.num_iterations, cfg.target.ppo.num_iterations) == (1400, 1400)
+        assert (cfg.source.ppo.num_iterations, cfg.target.ppo.num_iterations) == iterations
 
     def test_extends_merges_scales_key_by_key(self):
         cfg = load_experiment("xbot_to_go2", ["scale=smoke", "target.ppo.num_iterations=3"])
