@@ -62,6 +62,7 @@ def asset_sha256(asset: str) -> str:
         raise FileNotFoundError(f"robot asset {path} not found (config asset={asset!r})")
     return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
 
+
 CURRICULUM_SUMS = ("tracking_sum", "command_sq_sum", "error_sq_sum")
 """Per-env sums over the episode (or command period) that the command curriculum judges
 (``LeggedEnv.tracked``): the ``tracking_lin_vel`` kernel, the squared planar command, and the
