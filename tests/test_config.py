@@ -127,7 +127,8 @@ class TestPresets:
             assert stage.env == envs.default_config(robot) and stage.ppo == cfg.target.ppo
 
     @pytest.mark.parametrize("exp,robot,iterations", [("tron1_joystick", "tron1", (1400, 1400)),
-                                                      ("xbot_l_joystick", "xbot_l", (1400, 700))])
+                                                      ("xbot_l_joystick", "xbot_l", (1400, 700)),
+                                                      ("mit_humanoid_joystick", "mit_humanoid", (800, 700))])
     def test_biped_joystick_trains_both_stages_on_the_turning_observation(self, exp, robot, iterations):
         """Both stages without the heading input and with the body's roll and pitch, so the
         randomized stage sees the observation its source learned on (docs/command_grid.md, stops
