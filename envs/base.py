@@ -57,10 +57,15 @@ def asset_sha256(asset: str) -> str:
     array shape the same."""
     import hashlib
 
+    return hashlib.sha256(_asset_path(asset).read_bytes()).hexdigest()[:16]
+
+
+def _asset_path(asset: str) -> Path:
+    """``ASSETS_DIR / asset``, refused with the path when the file is not there."""
     path = ASSETS_DIR / asset
     if not path.is_file():
         raise FileNotFoundError(f"robot asset {path} not found (config asset={asset!r})")
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+    return path
 
 
 CURRICULUM_SUMS = ("tracking_sum", "command_sq_sum", "error_sq_sum")
@@ -244,10 +249,7 @@ class LocomotionConfig:
 
 def load_mj_model(cfg: LocomotionConfig) -> mujoco.MjModel:
     """Load the asset and apply the config's physics settings to it."""
-    path = ASSETS_DIR / cfg.asset
-    if not path.is_file():
-        raise FileNotFoundError(f"robot asset {path} not found (config asset={cfg.asset!r})")
-    model = mujoco.MjModel.from_xml_path(str(path))
+    model = mujoco.MjModel.from_xml_path(str(_asset_path(cfg.asset)))
     model.opt.timestep = cfg.sim_dt
     model.opt.iterations = cfg.solver_iterations
     model.opt.ls_iterations = cfg.ls_iterations
