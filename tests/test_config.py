@@ -128,11 +128,12 @@ class TestPresets:
 
     @pytest.mark.parametrize("exp,robot,iterations", [("tron1_joystick", "tron1", (1400, 1400)),
                                                       ("xbot_l_joystick", "xbot_l", (1400, 700)),
-                                                      ("mit_humanoid_joystick", "mit_humanoid", (800, 700))])
+                                                      ("mit_humanoid_joystick", "mit_humanoid", (800, 700)),
+                                                      ("cassie_joystick", "cassie", (1000, 700))])
     def test_biped_joystick_trains_both_stages_on_the_turning_observation(self, exp, robot, iterations):
         """Both stages without the heading input and with the body's roll and pitch, so the
         randomized stage sees the observation its source learned on (docs/command_grid.md, stops
-        56 and 57)."""
+        56 to 58)."""
         cfg = load_experiment(exp, ["scale=cpu"])
         assert cfg.source.robot == robot and list(cfg.targets) == [robot]
         for stage in (cfg.source, cfg.targets[robot]):
