@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, NamedTuple
@@ -54,10 +55,22 @@ def asset_sha256(asset: str) -> str:
     """The first 16 hex digits of the SHA-256 of the MJCF file ``asset`` (a name in
     ``ASSETS_DIR``): which version of a robot's model a checkpoint or a resume state was trained
     on. A changed model changes a policy's physics (XBot-L's soles, stop 57) with every config and
-    array shape the same."""
-    import hashlib
+    array shape the same.
 
-    return hashlib.sha256(_asset_path(asset).read_bytes()).hexdigest()[:16]
+    Once this process has loaded the file (``load_mj_model``), the digest is that of the bytes it
+    loaded, so a model edited while a run trains does not stamp the run's checkpoints with the
+    edit; before that it is the file's as it is now. The digest is of the raw bytes: an edit to a
+    comment or to line endings counts as another version."""
+    path = _asset_path(asset)
+    return _LOADED_DIGESTS.get(path.resolve()) or _sha256(path.read_bytes())
+
+
+_LOADED_DIGESTS: dict[Path, str] = {}
+"""``asset_sha256`` of each MJCF file as ``load_mj_model`` last read it, by resolved path."""
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()[:16]
 
 
 def _asset_path(asset: str) -> Path:
@@ -249,7 +262,10 @@ class LocomotionConfig:
 
 def load_mj_model(cfg: LocomotionConfig) -> mujoco.MjModel:
     """Load the asset and apply the config's physics settings to it."""
-    model = mujoco.MjModel.from_xml_path(str(_asset_path(cfg.asset)))
+    path = _asset_path(cfg.asset)
+    digest = _sha256(path.read_bytes())  # the version this process trains on (asset_sha256)
+    model = mujoco.MjModel.from_xml_path(str(path))
+    _LOADED_DIGESTS[path.resolve()] = digest
     model.opt.timestep = cfg.sim_dt
     model.opt.iterations = cfg.solver_iterations
     model.opt.ls_iterations = cfg.ls_iterations

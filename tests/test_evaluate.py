@@ -10,6 +10,7 @@ from ptrl_jax import evaluate
 from ptrl_jax.core import normalization
 from ptrl_jax.config import NetworkConfig
 from ptrl_jax.core.networks import init_actor_critic, policy_apply
+from ptrl_jax.io.checkpoints import warn_if_model_changed
 
 OBS, PRIV, ACT = 45, 53, 12
 NET = NetworkConfig(actor_hidden=(32, 16, 8), critic_hidden=(8,), init_noise_std=0.3)
@@ -168,6 +169,20 @@ class TestModelVersion:
         (tmp_path / "go2.xml").write_bytes((tmp_path / "go2.xml").read_bytes() + b"\n")
         assert len(same) == 16 and envs.asset_sha256("go2.xml") != same
 
+    def test_once_loaded_the_digest_is_the_loaded_files(self, tmp_path, monkeypatch):
+        """A model edited while a run trains does not stamp the run's checkpoints with the edit."""
+        import envs.base
+
+        (tmp_path / "go2.xml").write_bytes((envs.base.ASSETS_DIR / "go2.xml").read_bytes())
+        monkeypatch.setattr(envs.base, "ASSETS_DIR", tmp_path)
+        monkeypatch.setattr(envs.base, "_LOADED_DIGESTS", {})
+        envs.base.load_mj_model(envs.default_config("go2"))
+        loaded = envs.asset_sha256("go2.xml")
+        (tmp_path / "go2.xml").write_bytes((tmp_path / "go2.xml").read_bytes() + b"\n")
+        assert envs.asset_sha256("go2.xml") == loaded
+        envs.base.load_mj_model(envs.default_config("go2"))  # loaded again: the new version
+        assert envs.asset_sha256("go2.xml") != loaded
+
     def test_a_missing_asset_is_named(self):
         with pytest.raises(FileNotFoundError, match="no_such_robot.xml"):
             envs.asset_sha256("no_such_robot.xml")
@@ -175,10 +190,10 @@ class TestModelVersion:
     def test_another_model_version_warns_naming_both_digests(self):
         now = envs.asset_sha256("xbot_l.xml")
         with pytest.warns(UserWarning, match=rf"another version of xbot_l.xml \(sha256 0123456789abcdef, installed {now}\)"):
-            evaluate.warn_if_model_changed("old.npz", {"asset_sha256": "0123456789abcdef"}, "xbot_l.xml")
+            warn_if_model_changed("old.npz", {"asset_sha256": "0123456789abcdef"}, "xbot_l.xml")
 
     @pytest.mark.parametrize("meta", [{}, "current"])
     def test_the_same_model_or_an_unrecorded_one_is_silent(self, meta, recwarn):
         meta = {"asset_sha256": envs.asset_sha256("xbot_l.xml")} if meta == "current" else meta
-        evaluate.warn_if_model_changed("ckpt.npz", meta, "xbot_l.xml")
+        warn_if_model_changed("ckpt.npz", meta, "xbot_l.xml")
         assert not [w for w in recwarn if "another version" in str(w.message)]

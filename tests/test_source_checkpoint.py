@@ -1,5 +1,6 @@
 """Starting from a trained source (``source_checkpoint``): checked before anything compiles."""
 
+import warnings
 from typing import NamedTuple
 
 import jax
@@ -20,12 +21,12 @@ def go2_program():
     return cfg, make_program(cfg)
 
 
-def write_source(path, params, robot="go2", normalizer=None, stage="source"):
+def write_source(path, params, robot="go2", normalizer=None, stage="source", **meta):
     if normalizer is None:
         normalizer = {k: {"mean": np.zeros(n, np.float32), "m2": np.ones(n, np.float32), "count": np.float32(1)}
                       for k, n in (("state", 45), ("privileged_state", 53))}
     artifacts.save_checkpoint(path, params, normalizer, jax.tree.map(lambda p: np.zeros(p.shape, bool), params),
-                              {"robot": robot, "stage": stage})
+                              {"robot": robot, "stage": stage, **meta})
 
 
 # One xdist worker takes the whole class, so the smoke program (the module's fixture, about 15 s to
@@ -51,6 +52,22 @@ class TestLoadSourceParams:
         cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={tmp_path / 'target_scratch_seed0.npz'}"])
         loaded = load_source_params(cfg, program)
         assert jax.tree.all(jax.tree.map(np.array_equal, loaded["params"], params))
+
+    def test_a_source_trained_on_another_model_version_warns(self, go2_program, tmp_path):
+        """The run goes on (same shapes), but says the source's physics were another MJCF's."""
+        import envs
+
+        _, program = go2_program
+        params = jax.tree.map(np.asarray, program.source_trainer.init_params(jax.random.PRNGKey(5)))
+        write_source(tmp_path / "old.npz", params, asset_sha256="0123456789abcdef")
+        write_source(tmp_path / "same.npz", params, asset_sha256=envs.asset_sha256("go2.xml"))
+        cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={tmp_path / 'old.npz'}"])
+        with pytest.warns(UserWarning, match=r"old.npz was trained on another version of go2.xml \(sha256 0123456789abcdef"):
+            load_source_params(cfg, program)
+        cfg = load_experiment("go2_to_xbot", ["scale=smoke", f"source_checkpoint={tmp_path / 'same.npz'}"])
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", UserWarning)
+            load_source_params(cfg, program)
 
     def test_another_robot_is_refused(self, go2_program, tmp_path):
         _, program = go2_program

@@ -5,8 +5,9 @@ observation sizes a program expects, and refuses a mismatch naming the file and 
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import jax
 import numpy as np
@@ -56,15 +57,30 @@ def save_checkpoints(cfg: ExperimentConfig, run_dir: Path, out: ProgramOutput) -
                 )
 
 
-def load_policy(path: Path, robot: str, trainer, what: str) -> dict[str, Any]:
+def warn_if_model_changed(path: str | Path, meta: Mapping[str, Any], asset: str) -> None:
+    """Warn when a checkpoint was trained on another version of its robot's MJCF than ``asset``
+    as installed (``asset_sha256`` in its metadata; checkpoints written before stop 57 carry
+    none). The policy is still used, on the installed model, as its config and shapes are
+    unchanged; what it measured when it was trained may not hold there."""
+    saved, now = meta.get("asset_sha256"), envs.asset_sha256(asset)
+    if saved is not None and saved != now:
+        warnings.warn(f"checkpoint {path} was trained on another version of {asset} (sha256 {saved}, "
+                      f"installed {now}); it is used on the installed model, so it may behave "
+                      f"otherwise than when it was trained", UserWarning, stacklevel=3)
+
+
+def load_policy(path: Path, robot: str, trainer, what: str, asset: str | None = None) -> dict[str, Any]:
     """``{"params", "normalizer"}`` of a checkpoint, checked against ``robot`` and the network and
     observation sizes of ``trainer``; each refusal names the file and the leaf. ``what`` names
-    the config key in messages."""
+    the config key in messages. With ``asset`` (the MJCF the experiment trains ``robot`` on) it
+    warns when the checkpoint was trained on another version of it."""
     path = Path(path)
     ckpt = artifacts.load_checkpoint(path)
     found = ckpt["meta"].get("robot")
     if found != robot:
         raise CheckpointError(f"{what} {path} is a {found!r} policy; this experiment needs a {robot!r} one")
+    if asset is not None:
+        warn_if_model_changed(path, ckpt["meta"], asset)
     template = jax.eval_shape(trainer.init_params, jax.random.PRNGKey(0))
     flat = dict(jax.tree_util.tree_leaves_with_path(ckpt["params"]))
     want = dict(jax.tree_util.tree_leaves_with_path(template))
@@ -96,7 +112,8 @@ def load_source_params(cfg: ExperimentConfig, program: Program) -> Any:
     experiment's source robot and network; None when the config trains its own source."""
     if not cfg.source_checkpoint:
         return None
-    return load_policy(Path(cfg.source_checkpoint), cfg.source.robot, program.source_trainer, "source_checkpoint")
+    return load_policy(Path(cfg.source_checkpoint), cfg.source.robot, program.source_trainer, "source_checkpoint",
+                       cfg.source.env.asset)
 
 
 def load_init_target(cfg: ExperimentConfig, program: Program) -> Any:
@@ -104,4 +121,4 @@ def load_init_target(cfg: ExperimentConfig, program: Program) -> Any:
     if not cfg.init_checkpoint:
         return None
     return load_policy(Path(cfg.init_checkpoint), cfg.target.robot, program.target_trainers[cfg.target.robot],
-                       "init_checkpoint")
+                       "init_checkpoint", cfg.targets[cfg.target.robot].env.asset)
