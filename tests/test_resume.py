@@ -178,8 +178,10 @@ class TestResumeUnderAnotherRuntime:
         assert set(now) == {"go2.xml", "xbot_l.xml"}  # go2_to_xbot trains both
         old = runtime["models"].replace(now["xbot_l.xml"], "0123456789abcdef")
         artifacts.save_state(tmp_path / RESUME_STATE, {"x": np.zeros(1)}, {"runtime": {**runtime, "models": old}})
-        with pytest.raises(ConfigError, match=r"another runtime.*models: saved .*xbot_l.xml=0123456789abcdef"):
+        with pytest.raises(ConfigError, match=r"another runtime.*\(model xbot_l.xml: saved sha256 0123456789abcdef, "
+                                              rf"now {now['xbot_l.xml']}\)") as refused:
             run_cli.resume(tmp_path)
+        assert "go2.xml" not in str(refused.value)  # only the changed model is named
 
     def test_a_state_saved_before_the_cpu_was_recorded_is_not_refused_for_it(self, tmp_path):
         """States written before ``cpu_isa`` existed lack the key; only keys both hold are compared."""

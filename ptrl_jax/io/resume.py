@@ -120,10 +120,21 @@ def models_fingerprint(cfg: ExperimentConfig) -> str:
     return "; ".join(sorted({f"{st.env.asset}={envs.asset_sha256(st.env.asset)}" for st in stages}))
 
 
+def _models_diff(saved: str, now: str) -> list[str]:
+    """Each robot model that changed between two ``models_fingerprint``s, by file name."""
+    parse = lambda text: dict(part.split("=", 1) for part in text.split("; ") if "=" in part)  # noqa: E731
+    old, new = parse(saved), parse(now)
+    return [f"model {asset}: saved sha256 {old.get(asset, 'none')}, now {new.get(asset, 'none')}"
+            for asset in sorted(set(old) | set(new)) if old.get(asset) != new.get(asset)]
+
+
 def check_runtime(saved: dict[str, str], cfg: ExperimentConfig, run_dir: Path) -> None:
     """Refuse to resume under another runtime, naming each difference."""
     now = runtime_fingerprint(cfg)
-    diff = [f"{k}: saved {saved[k]!r}, now {now[k]!r}" for k in now if k in saved and saved[k] != now[k]]
+    diff = [f"{k}: saved {saved[k]!r}, now {now[k]!r}" for k in now
+            if k != "models" and k in saved and saved[k] != now[k]]
+    if "models" in saved:
+        diff += _models_diff(saved["models"], now["models"])
     if diff:
         raise ConfigError(f"resume={run_dir}: the run was saved under another runtime, so it would not "
                           f"continue bitwise ({'; '.join(diff)}); resume it where it ran, or start it anew")
