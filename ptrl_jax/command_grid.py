@@ -316,13 +316,22 @@ def format_markdown(robot: str, sim: str, grid: CommandGrid, summary: Mapping[st
 
 def write_outputs(out_dir: Path, robot: str, sim: str, grid: CommandGrid, summary: Mapping[str, Any],
                   pushed: Mapping[str, Any] | None, judged: Mapping[str, Any],
-                  walking_check: Sequence[Mapping[str, Any]] = ()) -> list[Path]:
-    """``grid.md``, ``grid.csv`` (a row per cell), ``grid.json`` (everything, with the robot
-    model's ``envs.asset_sha256``) and ``grid.png`` (the heat map) in ``out_dir``; the paths
-    written."""
+                  walking_check: Sequence[Mapping[str, Any]] = (), asset: str | None = None,
+                  trained_on: str | None = None) -> list[Path]:
+    """``grid.md``, ``grid.csv`` (a row per cell), ``grid.json`` (everything) and ``grid.png``
+    (the heat map) in ``out_dir``; the paths written. ``grid.json``'s ``model`` names the MJCF
+    graded on (``asset``, the robot's default when None) by its ``envs.asset_sha256``, and the
+    version the policy was trained on (``trained_on``, from its checkpoint; None when it does not
+    say); where the two differ, ``grid.md`` says so."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / f"grid.{ext}" for ext in ("md", "csv", "json", "png")]
+    asset = asset or envs.default_config(robot).asset
+    model = {"asset": asset, "graded_on": envs.asset_sha256(asset), "trained_on": trained_on}
+    if trained_on is not None and trained_on != model["graded_on"]:
+        judged = {**judged, "caveats": [*judged.get("caveats", ()),
+                                        f"the policy was trained on another version of {asset} (sha256 "
+                                        f"{trained_on}) than the one graded on ({model['graded_on']})"]}
     paths[0].write_text(format_markdown(robot, sim, grid, summary, pushed, judged, walking_check))
     with open(paths[1], "w", newline="") as f:
         w = csv.writer(f)
@@ -331,8 +340,7 @@ def write_outputs(out_dir: Path, robot: str, sim: str, grid: CommandGrid, summar
         for k, c in enumerate(summary["cells"]):
             w.writerow([*c["command"], *c["mean_velocity"], *c["error"], *c["rms_error"], int(c["fell"]),
                         c["time_up_s"]] + ([pushed["cells"][k]["fall_rate"]] if pushed else []))
-    asset = envs.default_config(robot).asset  # the model graded on, by version
-    paths[2].write_text(json.dumps({"robot": robot, "sim": sim, "model": {asset: envs.asset_sha256(asset)},
+    paths[2].write_text(json.dumps({"robot": robot, "sim": sim, "model": model,
                                     "grid": dataclasses.asdict(grid),
                                     "summary": summary, "pushed": pushed, "verdict": judged,
                                     "walking_check": list(walking_check)}, indent=2))

@@ -23,7 +23,6 @@ import dataclasses
 import functools
 import json
 import sys
-import warnings
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -35,6 +34,7 @@ import envs
 from envs.quadruped import QuadrupedEnv
 from ptrl_jax import command_grid
 from ptrl_jax.io.artifacts import CheckpointError, load_checkpoint
+from ptrl_jax.io.checkpoints import warn_if_model_changed
 from ptrl_jax.config import NetworkConfig
 from ptrl_jax.io.figures import FIG6_SCHEDULE, schedule_commands
 from ptrl_jax.core.networks import make_policy
@@ -401,18 +401,8 @@ def policy_from_checkpoint(path: str) -> dict[str, Any]:
     check_policy_fits_robot(path, ckpt["params"], robot, env_cfg)
     warn_if_model_changed(path, meta, env_cfg.asset)
     return {"robot": robot, "env": env_cfg, "network": network, "params": ckpt["params"],
-            "normalizer": normalizer, "normalize_observations": meta.get("normalize_observations", True)}
-
-
-def warn_if_model_changed(path: str, meta: Mapping[str, Any], asset: str) -> None:
-    """Warn when a checkpoint was trained on another version of its robot's MJCF than the one
-    installed (``asset_sha256`` in its metadata; checkpoints written before stop 57 carry none).
-    The policy still plays, on the current model, as its config and shapes are unchanged."""
-    saved, now = meta.get("asset_sha256"), envs.asset_sha256(asset)
-    if saved is not None and saved != now:
-        warnings.warn(f"checkpoint {path} was trained on another version of {asset} (sha256 {saved}, "
-                      f"installed {now}); it plays on the installed model, so what it measures may "
-                      f"differ from what it measured when it was trained", UserWarning, stacklevel=3)
+            "normalizer": normalizer, "normalize_observations": meta.get("normalize_observations", True),
+            "asset_sha256": meta.get("asset_sha256")}
 
 
 def check_policy_fits_robot(path: str, params: Any, robot: str, env_cfg: Any) -> None:
@@ -562,7 +552,8 @@ def main(argv: list[str] | None = None) -> int:
     if grid:  # exit status 0 when the grid meets every goal, 1 when not
         result = run_grid(policy, spec, sim=sim, seed=seed)
         paths = command_grid.write_outputs(out_dir, result["robot"], sim, spec, result["summary"], result["pushed"],
-                                           result["verdict"], result["walking_check"])
+                                           result["verdict"], result["walking_check"], policy["env"].asset,
+                                           policy.get("asset_sha256"))
         print(paths[0].read_text())
         if result["walking_check"]:
             print(format_verdicts(policy["robot"], result["walking_check"]))

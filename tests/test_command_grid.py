@@ -206,14 +206,24 @@ class TestGridCli:
 
 
 class TestOutputs:
-    def test_grid_json_names_the_model_version_it_graded(self, tmp_path):
-        """grid.json records the robot's MJCF digest, so a grid can be told from one graded on
-        another version of the model (XBot-L's soles changed in stop 57)."""
+    def _write(self, tmp_path, **model):
         grid = CommandGrid(vx=(0.0, 0.5), vy=(0.0,), yaw=(0.0,))
         summary = command_grid.summarize_grid(grid.commands(), records([[4], [4]], [[(0.0, 0.0, 0.0)], [(0.4, 0.0, 0.0)]],
                                                                         [[False], [False]]))
         judged = command_grid.verdict(grid, summary, None)
-        command_grid.write_outputs(tmp_path, "xbot_l", "mujoco", grid, summary, None, judged)
-        saved = json.loads((tmp_path / "grid.json").read_text())
-        assert saved["model"] == {"xbot_l.xml": envs.asset_sha256("xbot_l.xml")}
+        command_grid.write_outputs(tmp_path, "xbot_l", "mujoco", grid, summary, None, judged, **model)
+        return json.loads((tmp_path / "grid.json").read_text()), (tmp_path / "grid.md").read_text()
+
+    def test_grid_json_names_the_model_version_it_graded(self, tmp_path):
+        """grid.json records the robot's MJCF digest, so a grid can be told from one graded on
+        another version of the model (XBot-L's soles changed in stop 57)."""
+        now = envs.asset_sha256("xbot_l.xml")
+        saved, text = self._write(tmp_path, trained_on=now)
+        assert saved["model"] == {"asset": "xbot_l.xml", "graded_on": now, "trained_on": now}
+        assert "another version" not in text
         np.testing.assert_allclose(saved["summary"]["mean_error"]["vx"], 0.05)
+
+    def test_a_policy_trained_on_another_model_version_is_named_in_grid_md(self, tmp_path):
+        saved, text = self._write(tmp_path, asset="xbot_l.xml", trained_on="0123456789abcdef")
+        assert saved["model"]["trained_on"] == "0123456789abcdef"
+        assert "trained on another version of xbot_l.xml (sha256 0123456789abcdef)" in text
