@@ -29,7 +29,7 @@ XBOT_NEWEST = 14 * 47  # first entry of the newest of XBot-L's 15 stacked frames
 
 @pytest.fixture(scope="module")
 def robots():
-    return {r: envs.make(r) for r in ("go2", "a1", "xbot_l", "tron1", "cassie")}
+    return {r: envs.make(r) for r in ("go2", "a1", "xbot_l", "tron1", "cassie", "mit_humanoid")}
 
 
 def random_agent(key, env, network=NetworkConfig(actor_hidden=(16, 8, 4), critic_hidden=(16, 8, 4))):
@@ -87,12 +87,18 @@ def same(a, b) -> bool:
 class TestARobotOntoItselfIsTheIdentity:
     """The joystick presets' second stage (`<biped>_joystick`) maps a robot onto itself."""
 
-    @pytest.mark.parametrize("robot", ["tron1", "xbot_l"])
-    def test_a_robot_onto_itself_carries_every_leaf_bitwise(self, robots, robot):
-        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), robots[robot])
-        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), robots[robot])
-        params, norm = semantic.apply(semantic.build_map(robots[robot], robots[robot]),
-                                      src, src_norm, fresh, fresh_norm)
+    @pytest.mark.parametrize("turning", [False, True], ids=["default_observation", "turning_observation"])
+    @pytest.mark.parametrize("robot", ["tron1", "xbot_l", "mit_humanoid", "cassie"])
+    def test_a_robot_onto_itself_carries_every_leaf_bitwise(self, robots, robot, turning):
+        """On the observation the presets train (``observe_heading=false``, ``euler_order=zyx``)
+        as on the default one; Cassie's passive tarsus and toe joints included."""
+        env = robots[robot]
+        if turning:
+            env = envs.make(robot, dataclasses.replace(envs.default_config(robot), observe_heading=False,
+                                                       euler_order="zyx"))
+        src, src_norm, fresh_norm, _ = random_agent(jax.random.PRNGKey(0), env)
+        fresh, _, _, _ = random_agent(jax.random.PRNGKey(1), env)
+        params, norm = semantic.apply(semantic.build_map(env, env), src, src_norm, fresh, fresh_norm)
         assert jax.tree.structure(params) == jax.tree.structure(src)
         assert same(params, src) and same(norm, src_norm)
 
